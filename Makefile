@@ -1,0 +1,44 @@
+# FunREC: `make demo` and `make test` set everything up (idempotent) and run.
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+export MUJOCO_GL ?= egl
+export PYOPENGL_PLATFORM ?= egl
+
+.PHONY: setup demo test test-slow bench lint clean
+
+# Open3D needs libusb at import time; MuJoCo's offscreen renderer needs EGL or OSMesa.
+SYSTEM_LIBS := libusb-1.0-0 libegl1 libgl1 libosmesa6
+
+$(STAMP): pyproject.toml
+	@missing=""; for p in $(SYSTEM_LIBS); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
+	if [ -n "$$missing" ]; then \
+	  echo "installing system packages:$$missing"; \
+	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+	  $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq $$missing; \
+	fi
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e ".[test]"
+	touch $(STAMP)
+
+setup: $(STAMP)
+
+demo: $(STAMP)
+	$(BIN)/funrec demo -o demo_output
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+test-slow: $(STAMP)
+	$(BIN)/python -m pytest -q -m slow
+
+bench: $(STAMP)
+	$(BIN)/funrec bench --suite-dir bench_suite -o bench_report
+
+lint: $(STAMP)
+	$(BIN)/ruff check funrec funrec_robot tests demos
+
+clean:
+	rm -rf demo_output bench_report
