@@ -1,0 +1,148 @@
+"""Capture folder loading and validation (FORMATS.md section 1)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from funrec.capture import CaptureIntrinsics, CaptureWriter, load_capture, read_intrinsics
+from funrec.errors import CaptureError
+
+W, H = 32, 24
+
+
+def _write_capture(root: Path, frames: int = 3, hand_masks: bool = False) -> Path:
+    rng = np.random.default_rng(0)
+    intrinsics = CaptureIntrinsics(W, H, 30.0, 30.0, W / 2, H / 2, depth_scale=1000.0, fps=15.0)
+    writer = CaptureWriter(root, intrinsics)
+    for i in range(frames):
+        rgb = rng.integers(0, 255, (H, W, 3), dtype=np.uint8)
+        depth_m = rng.uniform(0.5, 3.0, (H, W))
+        depth_m[0, 0] = 0.0
+        hand = rng.random((H, W)) > 0.5 if hand_masks else None
+        writer.write_frame(i, rgb, depth_m, hand_mask=hand)
+    return root
+
+
+@pytest.fixture
+def capture_dir(tmp_path: Path) -> Path:
+    return _write_capture(tmp_path / "capture", hand_masks=True)
+
+
+def test_round_trip_quantises_depth_to_millimetres(tmp_path: Path) -> None:
+    rng = np.random.default_rng(1)
+    intrinsics = CaptureIntrinsics(W, H, 30.0, 31.0, 15.5, 11.5)
+    writer = CaptureWriter(tmp_path / "c", intrinsics)
+    rgb = rng.integers(0, 255, (H, W, 3), dtype=np.uint8)
+    depth_m = rng.uniform(0.3, 5.0, (H, W))
+    writer.write_frame(7, rgb, depth_m)
+    capture = load_capture(tmp_path / "c")
+    assert capture.stems == (7,)
+    np.testing.assert_array_equal(capture.rgb(0), rgb)
+    # depth_scale 1000 stores whole millimetres: the round trip error is at most half of one.
+    np.testing.assert_allclose(capture.depth_m(0), depth_m, atol=0.5e-3 + 1e-12)
+    assert capture.intrinsics == intrinsics
+    assert capture.mask("hand", 0) is None
+
+
+def test_frames_stream_in_stem_order(capture_dir: Path) -> None:
+    capture = load_capture(capture_dir)
+    assert len(capture) == 3 and capture.has_hand_masks and not capture.has_object_masks
+    frames = [frame for frame, _, _ in capture.frames()]
+    assert frames == [0, 1, 2]
+    assert capture.depth_m(0)[0, 0] == 0.0
+    assert capture.mask("hand", 1).dtype == bool
+
+
+def test_missing_intrinsics_names_the_file(capture_dir: Path) -> None:
+    (capture_dir / "intrinsics.json").unlink()
+    with pytest.raises(CaptureError, match=r"intrinsics\.json: missing intrinsics file"):
+        load_capture(capture_dir)
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "message"),
+    [("fx", 0.0, "fx must be positive"), ("fy", -3.0, "fy must be positive"), ("width", 31.5, "width must be a positive integer")],
+)
+def test_bad_intrinsics_values(capture_dir: Path, key: str, value: float, message: str) -> None:
+    path = capture_dir / "intrinsics.json"
+    data = json.loads(path.read_text())
+    data[key] = value
+    path.write_text(json.dumps(data))
+    with pytest.raises(CaptureError, match=message):
+        read_intrinsics(path)
+
+
+def test_unknown_intrinsics_key_is_rejected(capture_dir: Path) -> None:
+    path = capture_dir / "intrinsics.json"
+    data = json.loads(path.read_text())
+    data["fxx"] = 1.0
+    path.write_text(json.dumps(data))
+    with pytest.raises(CaptureError, match=r"unknown keys \['fxx'\]"):
+        load_capture(capture_dir)
+
+
+def test_stems_that_do_not_match(capture_dir: Path) -> None:
+    (capture_dir / "depth" / "000001.png").unlink()
+    with pytest.raises(CaptureError, match=r"rgb stems without depth: \[1\]"):
+        load_capture(capture_dir)
+
+
+def test_eight_bit_depth_names_file_and_frame(capture_dir: Path) -> None:
+    cv2.imwrite(str(capture_dir / "depth" / "000002.png"), np.zeros((H, W), np.uint8))
+    with pytest.raises(CaptureError, match=r"depth/000002\.png \(frame 2\): depth image \(must be 16-bit\) has pixel mode L"):
+        load_capture(capture_dir)
+
+
+def test_size_mismatch_names_file_and_frame(capture_dir: Path) -> None:
+    cv2.imwrite(str(capture_dir / "rgb" / "000001.png"), np.zeros((H, W + 2, 3), np.uint8))
+    with pytest.raises(CaptureError, match=r"rgb/000001\.png \(frame 1\): image is 34x24, intrinsics say 32x24"):
+        load_capture(capture_dir)
+
+
+def test_truncated_image_fails_when_read_and_names_frame(capture_dir: Path) -> None:
+    path = capture_dir / "depth" / "000001.png"
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+    capture = load_capture(capture_dir)  # the header is intact, so loading succeeds
+    capture.depth_m(0)
+    with pytest.raises(CaptureError, match=r"depth/000001\.png \(frame 1\): cannot decode image"):
+        capture.depth_m(1)
+
+
+def test_garbage_file_is_unreadable(capture_dir: Path) -> None:
+    (capture_dir / "rgb" / "000000.png").write_bytes(b"not an image")
+    with pytest.raises(CaptureError, match=r"rgb/000000\.png \(frame 0\): unreadable image"):
+        load_capture(capture_dir)
+
+
+def test_empty_capture_is_an_error(tmp_path: Path) -> None:
+    root = _write_capture(tmp_path / "c", frames=1)
+    for sub in ("rgb", "depth"):
+        shutil.rmtree(root / sub)
+        (root / sub).mkdir()
+    with pytest.raises(CaptureError, match="no frames"):
+        load_capture(root)
+
+
+def test_non_integer_stem(capture_dir: Path) -> None:
+    shutil.copy(capture_dir / "rgb" / "000000.png", capture_dir / "rgb" / "frame_a.png")
+    with pytest.raises(CaptureError, match=r"frame_a\.png: file stem is not an integer"):
+        load_capture(capture_dir)
+
+
+def test_mask_without_frame(capture_dir: Path) -> None:
+    shutil.copy(capture_dir / "masks" / "hand" / "000000.png", capture_dir / "masks" / "hand" / "000009.png")
+    with pytest.raises(CaptureError, match=r"mask stems without a frame: \[9\]"):
+        load_capture(capture_dir)
+
+
+def test_known_camera_poses_must_cover_every_frame(capture_dir: Path) -> None:
+    (capture_dir / "camera_poses.txt").write_text("0 0 0 0 0 0 0 1\n")
+    with pytest.raises(CaptureError, match="expected one pose per frame 0..2"):
+        load_capture(capture_dir)
