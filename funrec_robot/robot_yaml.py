@@ -1,0 +1,248 @@
+"""Read a robot YAML file into plain typed values, rejecting unknown keys and wrong types.
+
+Only the file's own structure is checked here; ``robot.py`` checks the names and numbers against
+the model. Every error names the file and the key path (``gripper.open: expected a number``).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from funrec_robot.errors import RobotDescriptionError, format_names
+
+PACKAGE_SCHEME = "package://"
+"""Prefix of a model path inside an installed Python package: ``package://<import name>/<path>``."""
+
+BASE_MOTIONS = ("x", "y", "yaw")
+"""Motions a mobile base can have, in the order their joints must appear in the model."""
+
+
+@dataclass(frozen=True)
+class ServoEntry:
+    """Gains of a position servo that funrec_robot adds for a joint without an actuator."""
+
+    kp: float
+    """Position gain, N m/rad or N/m."""
+    kv: float
+    """Velocity gain, N m s/rad or N s/m."""
+
+
+@dataclass(frozen=True)
+class RobotFile:
+    """The contents of a robot YAML file, structure-checked but not yet checked against the model."""
+
+    path: Path
+    """The YAML file."""
+    name: str
+    """Robot name (default: the file stem)."""
+    model: Path
+    """Resolved MJCF or URDF path."""
+    urdf: Path | None
+    """Resolved URDF path of the same robot, for pinocchio, or None."""
+    root_body: str | None
+    """Body whose subtree is the robot; None: the model's only top-level body."""
+    base: dict[str, str]
+    """Motion ('x', 'y', 'yaw') -> joint name."""
+    arm_joints: tuple[str, ...]
+    """Arm joint names, from the base to the hand."""
+    gripper_joints: tuple[str, ...]
+    """Finger joint names."""
+    gripper_actuator: str | None
+    """Actuator that drives the fingers, or None (servos are added on the finger joints)."""
+    gripper_open: float
+    """Gripper command when open: actuator control, or finger joint position, m or rad."""
+    gripper_closed: float
+    """Gripper command when closed, same unit."""
+    ee_site: str
+    """End-effector site name."""
+    approach_axis: tuple[float, float, float]
+    """(3,) grasp z axis in the site frame."""
+    closing_axis: tuple[float, float, float]
+    """(3,) grasp y axis in the site frame."""
+    offset: tuple[float, float, float]
+    """(3,) grasp origin in the site frame, m."""
+    held_joints: dict[str, float]
+    """Joint -> position the simulation holds it at (joints the planner never moves)."""
+    home: dict[str, float]
+    """Planning joint -> home position."""
+    position_limits: dict[str, tuple[float, float]]
+    """Joint -> (lower, upper) override."""
+    velocity_limits: dict[str, float]
+    """Joint -> speed limit, rad/s or m/s."""
+    acceleration_limits: dict[str, float]
+    """Joint -> acceleration limit, rad/s^2 or m/s^2."""
+    effort_limits: dict[str, float]
+    """Joint -> torque or force limit, N m or N."""
+    gravity_compensation: bool
+    """Whether the simulated controllers cancel gravity."""
+    damping: dict[str, float]
+    """Joint -> viscous damping that replaces the model's in simulation."""
+    servos: dict[str, ServoEntry]
+    """Joint -> gains of the servo added to it."""
+
+
+class _Reader:
+    """Typed access to nested YAML values; errors quote the file and the key path."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def fail(self, key: str, problem: str) -> RobotDescriptionError:
+        return RobotDescriptionError(self.path, f"{key}: {problem}")
+
+    def mapping(self, value: Any, key: str, allowed: tuple[str, ...] | None = None) -> dict[str, Any]:
+        if value is None:
+            return {}
+        if not isinstance(value, dict) or not all(isinstance(k, str) for k in value):
+            raise self.fail(key, f"expected a mapping with text keys, got {type(value).__name__}")
+        if allowed is not None:
+            unknown = sorted(set(value) - set(allowed))
+            if unknown:
+                raise self.fail(key, f"unknown key {format_names(unknown)}; valid keys: {format_names(allowed)}")
+        return value
+
+    def text(self, value: Any, key: str) -> str:
+        if not isinstance(value, str) or not value:
+            raise self.fail(key, f"expected a name, got {value!r}")
+        return value
+
+    def number(self, value: Any, key: str, minimum: float | None = None, positive: bool = False) -> float:
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+            raise self.fail(key, f"expected a finite number, got {value!r}")
+        if minimum is not None and value < minimum:
+            raise self.fail(key, f"must be at least {minimum:g}, got {value!r}")
+        if positive and value <= 0:
+            raise self.fail(key, f"must be positive, got {value!r}")
+        return float(value)
+
+    def names(self, value: Any, key: str) -> tuple[str, ...]:
+        if not isinstance(value, list):
+            raise self.fail(key, f"expected a list of names, got {value!r}")
+        names = tuple(self.text(item, f"{key}[{i}]") for i, item in enumerate(value))
+        if len(set(names)) != len(names):
+            raise self.fail(key, f"names repeat: {list(names)}")
+        return names
+
+    def vector3(self, value: Any, key: str) -> tuple[float, float, float]:
+        if not isinstance(value, list) or len(value) != 3:
+            raise self.fail(key, f"expected 3 numbers, got {value!r}")
+        x, y, z = (self.number(v, key) for v in value)
+        return (x, y, z)
+
+    def number_map(
+        self, value: Any, key: str, minimum: float | None = None, positive: bool = False
+    ) -> dict[str, float]:
+        items = self.mapping(value, key)
+        return {name: self.number(v, f"{key}.{name}", minimum, positive) for name, v in items.items()}
+
+    def path_of(self, value: Any, key: str) -> Path:
+        text = self.text(value, key)
+        if text.startswith(PACKAGE_SCHEME):
+            package, _, inner = text[len(PACKAGE_SCHEME) :].partition("/")
+            spec = importlib.util.find_spec(package) if package.isidentifier() else None
+            if spec is None or not spec.submodule_search_locations:
+                raise self.fail(key, f"'{text}': Python package '{package}' is not installed")
+            path = Path(next(iter(spec.submodule_search_locations))) / inner
+        else:
+            path = self.path.parent / text
+        if not path.is_file():
+            raise self.fail(key, f"'{text}': no such file {path}")
+        return path.resolve()
+
+
+_TOP_KEYS = (
+    "name", "model", "urdf", "root_body", "base", "arm_joints", "gripper", "ee",
+    "held_joints", "home", "limits", "simulation",
+)  # fmt: skip
+_REQUIRED = ("model", "arm_joints", "gripper", "ee")
+
+
+def read_robot_yaml(path: str | Path) -> RobotFile:
+    """Parse and structure-check a robot YAML file.
+
+    Args:
+        path: the YAML file.
+
+    Returns:
+        Its contents with paths resolved (relative to the file, or ``package://`` in an installed package).
+
+    Raises:
+        RobotDescriptionError: unreadable file, unknown key, missing key, wrong type or missing model file.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise RobotDescriptionError(path, "no such robot YAML file")
+    try:
+        document = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise RobotDescriptionError(path, f"not valid YAML: {exc}") from exc
+    r = _Reader(path)
+    top = r.mapping(document, "(top level)", _TOP_KEYS)
+    missing = [key for key in _REQUIRED if key not in top]
+    if missing:
+        raise r.fail("(top level)", f"missing key {format_names(missing)}")
+    base = r.mapping(top.get("base"), "base", BASE_MOTIONS)
+    gripper = r.mapping(top["gripper"], "gripper", ("joints", "actuator", "open", "closed"))
+    for key in ("joints", "open", "closed"):
+        if key not in gripper:
+            raise r.fail("gripper", f"missing key '{key}'")
+    ee = r.mapping(top["ee"], "ee", ("site", "approach_axis", "closing_axis", "offset"))
+    if "site" not in ee:
+        raise r.fail("ee", "missing key 'site'")
+    limits = r.mapping(top.get("limits"), "limits", ("position", "velocity", "acceleration", "effort"))
+    position = r.mapping(limits.get("position"), "limits.position")
+    simulation = r.mapping(top.get("simulation"), "simulation", ("gravity_compensation", "damping", "servos"))
+    gravity = simulation.get("gravity_compensation", False)
+    if not isinstance(gravity, bool):
+        raise r.fail("simulation.gravity_compensation", f"expected true or false, got {gravity!r}")
+    servos = {}
+    for joint, entry in r.mapping(simulation.get("servos"), "simulation.servos").items():
+        key = f"simulation.servos.{joint}"
+        gains = r.mapping(entry, key, ("kp", "kv"))
+        if set(gains) != {"kp", "kv"}:
+            raise r.fail(key, "expected both 'kp' and 'kv'")
+        servos[joint] = ServoEntry(r.number(gains["kp"], f"{key}.kp", 0.0), r.number(gains["kv"], f"{key}.kv", 0.0))
+    position_limits = {}
+    for joint, bounds in position.items():
+        key = f"limits.position.{joint}"
+        if not isinstance(bounds, list) or len(bounds) != 2:
+            raise r.fail(key, f"expected [lower, upper], got {bounds!r}")
+        lower, upper = r.number(bounds[0], key), r.number(bounds[1], key)
+        if not lower < upper:
+            raise r.fail(key, f"lower {lower:g} must be below upper {upper:g}")
+        position_limits[joint] = (lower, upper)
+    return RobotFile(
+        path=path,
+        name=r.text(top.get("name", path.stem), "name"),
+        model=r.path_of(top["model"], "model"),
+        urdf=r.path_of(top["urdf"], "urdf") if "urdf" in top else None,
+        root_body=r.text(top["root_body"], "root_body") if "root_body" in top else None,
+        base={motion: r.text(joint, f"base.{motion}") for motion, joint in base.items()},
+        arm_joints=r.names(top["arm_joints"], "arm_joints"),
+        gripper_joints=r.names(gripper["joints"], "gripper.joints"),
+        gripper_actuator=r.text(gripper["actuator"], "gripper.actuator") if "actuator" in gripper else None,
+        gripper_open=r.number(gripper["open"], "gripper.open"),
+        gripper_closed=r.number(gripper["closed"], "gripper.closed"),
+        ee_site=r.text(ee["site"], "ee.site"),
+        approach_axis=r.vector3(ee.get("approach_axis", [0, 0, 1]), "ee.approach_axis"),
+        closing_axis=r.vector3(ee.get("closing_axis", [0, 1, 0]), "ee.closing_axis"),
+        offset=r.vector3(ee.get("offset", [0, 0, 0]), "ee.offset"),
+        held_joints=r.number_map(top.get("held_joints"), "held_joints"),
+        home=r.number_map(top.get("home"), "home"),
+        position_limits=position_limits,
+        velocity_limits=r.number_map(limits.get("velocity"), "limits.velocity", positive=True),
+        acceleration_limits=r.number_map(limits.get("acceleration"), "limits.acceleration", positive=True),
+        effort_limits=r.number_map(limits.get("effort"), "limits.effort", positive=True),
+        gravity_compensation=gravity,
+        damping=r.number_map(simulation.get("damping"), "simulation.damping", 0.0),
+        servos=servos,
+    )
+
+
+__all__ = ["BASE_MOTIONS", "PACKAGE_SCHEME", "RobotFile", "ServoEntry", "read_robot_yaml"]

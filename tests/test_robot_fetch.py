@@ -1,0 +1,84 @@
+"""A robot the project did not write, through its YAML file alone: gymnasium-robotics' Fetch."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+from funrec_robot import ROBOT_PREFIX, build_mujoco_model, load_robot, reset_to_home, robot_indices
+
+gymnasium_robotics = pytest.importorskip("gymnasium_robotics")
+
+FETCH_YAML = Path(__file__).resolve().parents[1] / "robots" / "fetch.yaml"
+
+
+@pytest.fixture(scope="module")
+def fetch():
+    return load_robot(FETCH_YAML)
+
+
+@pytest.fixture(scope="module")
+def model(fetch) -> mujoco.MjModel:
+    return build_mujoco_model(fetch)
+
+
+def test_fetch_loads_from_the_installed_package(fetch) -> None:
+    package_dir = Path(gymnasium_robotics.__file__).resolve().parent
+    assert fetch.model_path == package_dir / "envs" / "assets" / "fetch" / "reach.xml"
+    assert fetch.base_type == "x+y"
+    assert fetch.base_joints == ("robot0:slide0", "robot0:slide1")
+    assert len(fetch.arm_joints) == 7 and fetch.nq == 9
+    assert fetch.gripper.actuator is None
+    # Unlimited roll joints stay unlimited; the others carry the file's ranges.
+    i = fetch.joint_names.index("robot0:upperarm_roll_joint")
+    assert (fetch.q_min[i], fetch.q_max[i]) == (-np.inf, np.inf)
+    i = fetch.joint_names.index("robot0:shoulder_lift_joint")
+    assert (fetch.q_min[i], fetch.q_max[i]) == (-1.221, 1.518)
+    # The grasp frame is re-expressed: the file's site has x out of the gripper.
+    np.testing.assert_allclose(fetch.T_ee_grasp[:3, 2], [1.0, 0.0, 0.0])
+    assert fetch.grasp_site == "robot0:grip_grasp"
+
+
+def test_fetch_gets_servos_and_loses_its_scene(fetch, model) -> None:
+    indices = robot_indices(fetch, model)
+    servo_names = {mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, a) for a in range(model.nu)}
+    for name in (*fetch.joint_names, *fetch.gripper.joints, *fetch.held_joints):
+        assert f"{ROBOT_PREFIX}{name}_servo" in servo_names
+    assert model.nu == fetch.nq + len(fetch.gripper.joints) + len(fetch.held_joints)
+    assert model.neq == 0  # the mocap weld of the file stays behind with the mocap body
+    assert model.nmocap == 0 and mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, ROBOT_PREFIX + "table0") < 0
+    assert model.body_mass[indices.bodies].sum() == pytest.approx(120.08, abs=0.1)  # kg, as in the file
+    slide = model.joint(ROBOT_PREFIX + "robot0:slide0")
+    assert model.dof_damping[slide.dofadr[0]] == 100.0  # the YAML's override of the file's 1e11
+
+
+def test_fetch_holds_home_and_tracks_a_step(fetch, model) -> None:
+    data = mujoco.MjData(model)
+    reset_to_home(fetch, model, data)
+    indices = robot_indices(fetch, model)
+    assert data.ncon == 0
+    for _ in range(round(2.0 / model.opt.timestep)):
+        mujoco.mj_step(model, data)
+    np.testing.assert_allclose(data.qpos[indices.qpos], fetch.q_home, atol=1e-3)
+    np.testing.assert_allclose(data.qpos[indices.held_qpos], indices.held_values, atol=1e-3)
+
+    step = np.where(np.arange(fetch.nq) < 2, 0.05, 0.1)  # m for the base slides, rad for the arm
+    target = fetch.q_home + step
+    data.ctrl[indices.actuators] = target
+    history = []
+    for _ in range(round(2.0 / model.opt.timestep)):
+        mujoco.mj_step(model, data)
+        history.append(data.qpos[indices.qpos] - target)
+    errors = np.array(history)
+    assert np.all(np.isfinite(errors)) and np.abs(data.qvel).max() < 1e-2
+    overshoot = (errors * np.sign(step)).max(axis=0) / np.abs(step)
+    assert np.all(overshoot < 0.25), overshoot
+    # forearm_roll has a 10 N m/rad spring in the file: 1 mrad of steady error against kp 1000.
+    assert np.all(np.abs(errors[-1]) < 2e-3), errors[-1]
+    data.ctrl[indices.gripper_actuators] = fetch.gripper.closed
+    for _ in range(round(1.5 / model.opt.timestep)):
+        mujoco.mj_step(model, data)
+    np.testing.assert_allclose(data.qpos[indices.gripper_qpos], fetch.gripper.closed, atol=2e-3)
