@@ -1,0 +1,148 @@
+"""Tests of funrec.bench on a two-sequence suite written by the test_evaluate fixture (no funrec.synth)."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_evaluate import write_tiny_sequence
+
+from funrec import bench
+from funrec.bench import BenchConfig, format_report, run_bench, summarize
+from funrec.errors import FunrecError
+from funrec.evaluate import PartEvaluation, TwinEvaluation
+
+SEQUENCES = ("seq_a", "seq_b")
+
+
+@pytest.fixture(scope="module")
+def suite(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("suite")
+    write_tiny_sequence(root, "seq_a")
+    write_tiny_sequence(root, "seq_b", offset=(1.0, 2.0, 0.0))
+    (root / "not_a_sequence").mkdir()  # ignored: no gt/gt.json
+    return root
+
+
+def _config(**changes) -> BenchConfig:
+    return BenchConfig(**{"generate_missing": False, "jobs": 2, "timeout_s": 120.0, **changes})
+
+
+def _load_strict_json(path: Path) -> dict:
+    def reject(constant):
+        raise ValueError(f"non-standard JSON constant {constant}")
+
+    return json.loads(path.read_text(), parse_constant=reject)
+
+
+def test_oracle_bench_is_perfect_and_writes_reports(suite, tmp_path):
+    calls = []
+    report = run_bench(suite, tmp_path / "out", _config(method="oracle"), progress=lambda done, total: calls.append((done, total)), command_line="funrec bench --method oracle")
+    assert calls[-1] == (2, 2)
+    assert [r.name for r in report.main.sequences] == list(SEQUENCES)
+    s = report.main.summary
+    assert (s.sequences, s.failed_sequences, s.parts, s.failed_parts, s.fail_pct) == (2, 0, 4, 0, 0.0)
+    # Exact up to file round-off, as in test_evaluate (10 um bounds).
+    assert s.axis_revolute_deg < 1e-3 and s.axis_prismatic_deg < 1e-3 and s.pivot_m < 1e-5
+    assert s.adds_auc > 99.999 and s.add_auc > 99.999 and s.miou == pytest.approx(100.0)
+    assert s.chamfer_cm < 1e-3 and s.camera_ate_cm < 1e-3
+    assert s.frames_per_s > 0 and s.peak_rss_mb > 10  # a Python child with numpy uses tens of MB
+    markdown = (tmp_path / "out" / "report.md").read_text()
+    for needle in ("git commit:", "machine:", "date:", "method: oracle", "`funrec bench --method oracle`", "| Method |", "| seq_a |", "Fail (%)"):
+        assert needle in markdown
+    data = _load_strict_json(tmp_path / "out" / "report.json")
+    assert data["methods"][0]["summary"]["fail_pct"] == 0.0
+    assert data["methods"][0]["sequences"][1]["evaluation"]["parts"][0]["true_name"] == "door"
+    assert "| oracle |" in format_report(report)
+    assert (tmp_path / "out" / "twins" / "oracle" / "seq_a" / "articulation.json").is_file()
+
+
+def test_trivial_bench_scores_badly(suite, tmp_path):
+    report = run_bench(suite, tmp_path / "out", _config(method="trivial", only=("seq_b",)))
+    s = report.main.summary
+    assert s.sequences == 1 and s.failed_sequences == 0  # it ran and wrote a readable twin
+    assert s.fail_pct == 100.0 and s.invented_parts == 1  # its plane is metres from both parts
+    assert s.camera_ate_cm > 1.0 and s.chamfer_cm > 10.0
+    assert "| trivial |" in format_report(report)
+
+
+def test_failing_reconstruction_and_ablations_are_failure_rows(suite, tmp_path):
+    # An unknown flag makes `funrec reconstruct` exit non-zero whether or not it exists yet.
+    config = _config(method="funrec", reconstruct_args=("--definitely-not-a-flag",), ablations=(("variant", ("--x",)),), only=("seq_a",))
+    report = run_bench(suite, tmp_path / "out", config)
+    assert [m.label for m in report.methods] == ["funrec", "variant"]
+    for method in report.methods:
+        assert method.summary.fail_pct == 100.0 and method.summary.failed_sequences == 1
+        for row in method.sequences:
+            assert row.status == "failed" and row.reason.startswith("exit code")
+            assert [p.failure for p in row.evaluation.parts] == [row.reason, row.reason]
+            assert row.log_path.is_file()
+    assert report.ablations[0].command[-2:] == ("--definitely-not-a-flag", "--x")
+    markdown = (tmp_path / "out" / "report.md").read_text()
+    assert "## Ablations" in markdown and "| variant |" in markdown and "seq_a: failed: exit code" in markdown
+    _load_strict_json(tmp_path / "out" / "report.json")
+
+
+def test_timeout_is_a_failure_row(suite, tmp_path, monkeypatch):
+    monkeypatch.setattr(bench, "_method_command", lambda *args: [sys.executable, "-c", "import time; time.sleep(60)"])
+    report = run_bench(suite, tmp_path / "out", _config(method="funrec", timeout_s=0.5, only=("seq_a",)))
+    row = report.main.sequences[0]
+    assert row.status == "timeout" and row.reason == "timeout after 0.5 s"
+    assert row.wall_s < 10.0 and row.peak_rss_mb is None  # killed, not waited for
+    assert report.main.summary.fail_pct == 100.0
+
+
+def test_child_peak_memory_is_the_childs_own(tmp_path):
+    # 100 MB of ones, written so the pages are resident.
+    result = bench._run_child([sys.executable, "-c", "import numpy as np; a = np.ones(12_500_000); a.sum()"], tmp_path / "log.txt", 60.0)
+    assert result.returncode == 0 and not result.timed_out
+    assert result.peak_rss_mb > 100.0
+    # Linux carries the peak RSS of a process across fork and exec; the launcher keeps a
+    # 200 MB bench from showing up as the peak of a child that does nothing (~10 MB).
+    ballast = np.ones(25_000_000)
+    ballast.sum()
+    idle = bench._run_child([sys.executable, "-c", "pass"], tmp_path / "log.txt", 60.0)
+    assert idle.returncode == 0 and idle.peak_rss_mb < 60.0
+    del ballast
+
+
+def test_child_exit_codes(tmp_path):
+    assert bench._run_child([sys.executable, "-c", "raise SystemExit(3)"], tmp_path / "log", 60.0).returncode == 3
+    assert bench._run_child([sys.executable, "-c", "import os; os.kill(os.getpid(), 9)"], tmp_path / "log", 60.0).returncode == -9
+    missing = bench._run_child([str(tmp_path / "no-such-program")], tmp_path / "log", 60.0)
+    assert missing.returncode == 127 and "cannot run" in (tmp_path / "log").read_text()
+
+
+def test_bad_requests_raise(suite, tmp_path):
+    with pytest.raises(FunrecError, match="expected one of"):
+        run_bench(suite, tmp_path, _config(method="magic"))
+    with pytest.raises(FunrecError, match="no capture with gt/ for \\['seq_z'\\]"):
+        run_bench(suite, tmp_path, _config(method="oracle", only=("seq_z",)))
+    with pytest.raises(FunrecError, match="unique"):
+        run_bench(suite, tmp_path, _config(method="oracle", ablations=(("oracle", ()),)))
+    with pytest.raises(FunrecError, match="no sequences"):
+        run_bench(tmp_path / "empty", tmp_path / "out", _config(method="oracle"))
+
+
+def _row(parts, status="ok", chamfer=None, frames=10, wall=2.0):
+    evaluation = TwinEvaluation(Path("t"), Path("g"), tuple(parts), None if status == "ok" else "x", (), chamfer, 1.0)
+    return bench.SequenceResult("s", "m", status, None, frames, wall, 50.0, evaluation, Path("t"), None)
+
+
+def test_summary_averages_over_non_failed_parts_and_fails_over_all():
+    door = PartEvaluation("d", "revolute", "p", None, 0.0, 5, 2.0, 0.1, 4.0, 80.0, 60.0, 50.0)
+    drawer = PartEvaluation("w", "prismatic", "q", None, 0.0, 5, 6.0, None, 0.02, 40.0, 20.0, None)
+    door_2 = PartEvaluation("d", "revolute", "p", None, 0.0, 5, 4.0, 0.3, 8.0, 60.0, 40.0, 70.0)
+    failed = PartEvaluation("e", "revolute", failure="no part found")
+    s = summarize([_row([door, drawer], chamfer=2.0), _row([door_2, failed], chamfer=4.0), _row([failed], status="timeout", wall=100.0)])
+    assert (s.parts, s.failed_parts, s.fail_pct) == (5, 2, 40.0)
+    assert s.axis_revolute_deg == pytest.approx(3.0) and s.axis_prismatic_deg == pytest.approx(6.0)
+    assert s.pivot_m == pytest.approx(0.2) and s.state_revolute_deg == pytest.approx(6.0) and s.state_prismatic_m == pytest.approx(0.02)
+    assert s.adds_auc == pytest.approx(60.0) and s.add_auc == pytest.approx(40.0)
+    assert s.miou == pytest.approx(60.0)  # parts without an mIoU (no true mask) are left out
+    assert s.chamfer_cm == pytest.approx(3.0)
+    assert s.frames_per_s == pytest.approx(20 / 4.0)  # the timed-out run's time is not throughput
+    assert s.failed_sequences == 1 and s.peak_rss_mb == 50.0
