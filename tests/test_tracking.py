@@ -1,0 +1,358 @@
+"""Tests of funrec.tracking: camera poses on rendered planar scenes with a moving door and
+hand, and on ten real TUM fr1_xyz Kinect frames against motion capture."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+import shutil
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from funrec.capture import CaptureIntrinsics, CaptureWriter, load_capture
+from funrec.errors import ReconstructionError
+from funrec.geometry.transforms import invert_transform, make_transform, rotation_about_axis
+from funrec.tracking import CameraTrajectory, TrackingConfig, track_camera
+
+TUM_DIR = Path("/work/shared/realdata/tum_fr1_xyz_10")
+TUM_K = np.array([[517.3, 0.0, 318.6], [0.0, 516.5, 255.3], [0.0, 0.0, 1.0]])
+"""Official TUM fr1 colour intrinsics (cy 255.3, not the ROS default 239.5)."""
+TUM_DISTORTION = np.array([0.2624, -0.9531, -0.0054, 0.0026, 1.1633])
+"""fr1 radial-tangential distortion (k1, k2, p1, p2, k3): up to ~8 px at the image corners."""
+
+# ---------------------------------------------------------------------------------------
+# A small ray-cast renderer of textured rectangles: enough geometry for known-answer tests
+# (a room, a cabinet whose door swings open revealing its interior, and a hand).
+
+LABEL_STATIC, LABEL_DOOR, LABEL_INTERIOR, LABEL_HAND = 1, 2, 3, 4
+
+
+@dataclass(frozen=True)
+class Rect:
+    """A textured rectangle: local x in [0, width], y in [0, height], normal = local z."""
+
+    T_world_rect: Callable[[int], np.ndarray]
+    """frame -> (4, 4) pose of the rectangle's corner frame in the world."""
+    width: float
+    height: float
+    texture: np.ndarray
+    label: int
+    ellipse: bool = False
+
+
+def noise_texture(rng: np.random.Generator, width_m: float, height_m: float) -> np.ndarray:
+    """Multi-octave colour noise with a fixed physical scale (blobs of 2-60 cm on a 4 mm
+    texel grid), so that big walls are as textured as small doors and nothing is finer
+    than the pixels can resolve (no aliasing flicker).
+
+    Returns:
+        (rows, cols, 3) uint8 texture spanning width_m x height_m.
+    """
+    texel_m = 0.004
+    cols, rows = int(width_m / texel_m), int(height_m / texel_m)
+    texture = np.zeros((rows, cols, 3), np.float32)
+    for blob_m, amplitude in ((0.6, 0.6), (0.25, 0.8), (0.1, 1.0), (0.05, 0.8), (0.025, 0.5)):
+        coarse = rng.random((max(2, int(height_m / blob_m)), max(2, int(width_m / blob_m)), 3)).astype(np.float32)
+        texture += amplitude * cv2.resize(coarse, (cols, rows), interpolation=cv2.INTER_CUBIC)
+    texture -= texture.min()
+    return (255 * texture / texture.max()).astype(np.uint8)
+
+
+def fixed(T: np.ndarray) -> Callable[[int], np.ndarray]:
+    return lambda frame: T
+
+
+def frame_axes(origin, e1, e2) -> np.ndarray:
+    e1, e2 = np.asarray(e1, float), np.asarray(e2, float)
+    return make_transform(np.stack([e1, e2, np.cross(e1, e2)], axis=1), origin)
+
+
+def render(rects: list[Rect], T_world_camera: np.ndarray, K: np.ndarray, W: int, H: int, frame: int):
+    """Render (rgb (H,W,3) uint8, depth_m (H,W), label (H,W) int) by ray casting."""
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    d = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], axis=-1)
+    depth = np.full((H, W), np.inf)
+    rgb = np.zeros((H, W, 3), np.uint8)
+    label = np.zeros((H, W), np.int64)
+    for rect in rects:
+        T_camera_rect = invert_transform(T_world_camera) @ rect.T_world_rect(frame)
+        o, e1, e2, n = T_camera_rect[:3, 3], T_camera_rect[:3, 0], T_camera_rect[:3, 1], T_camera_rect[:3, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (o @ n) / (d @ n)
+        hit = t[..., None] * d - o
+        a, b = hit @ e1, hit @ e2
+        inside = (t > 0.05) & (a >= 0) & (a <= rect.width) & (b >= 0) & (b <= rect.height)
+        if rect.ellipse:
+            inside &= ((a / rect.width - 0.5) ** 2 + (b / rect.height - 0.5) ** 2) <= 0.25
+        closer = inside & (t < depth)
+        th, tw = rect.texture.shape[:2]
+        map_x = (a / rect.width * (tw - 1)).astype(np.float32)
+        map_y = (b / rect.height * (th - 1)).astype(np.float32)
+        colour = cv2.remap(rect.texture, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+        depth[closer], rgb[closer], label[closer] = t[closer], colour[closer], rect.label
+    depth[~np.isfinite(depth)] = 0.0
+    return rgb, depth, label
+
+
+@dataclass(frozen=True)
+class Scene:
+    rects: list[Rect]
+    T_world_camera: np.ndarray
+    """(F, 4, 4) true camera poses."""
+    T_world_door: np.ndarray
+    """(F, 4, 4) door motion: canonical (frame 0) door points to where they are at frame f."""
+    K: np.ndarray
+    width: int
+    height: int
+
+
+DOOR_HINGE_WORLD = np.array([0.2, 0.0, 2.0])
+DOOR_AXIS_WORLD = np.array([0.0, -1.0, 0.0])
+
+
+def make_scene(frames: int, width: int = 320, height: int = 240, hand: bool = False, door_max_rad: float = 1.2,
+               seed: int = 0) -> Scene:
+    """A room (camera 0 looks at the back wall 2.5 m away), a cabinet whose door opens about a
+    vertical hinge, and optionally an elliptical hand covering ~25 % of the image."""
+    rng = np.random.default_rng(seed)
+    f = 0.82 * width
+    K = np.array([[f, 0, width / 2 - 0.5], [0, f, height / 2 - 0.5], [0, 0, 1.0]])
+    s = np.linspace(0.0, 1.0, frames)
+    position = np.stack([0.25 * np.sin(2 * np.pi * s), 0.06 * np.sin(4 * np.pi * s), 0.3 * s], axis=1)
+    rotvec = np.stack([0.05 * np.sin(2 * np.pi * s), -0.15 * np.sin(2 * np.pi * s), 0.03 * np.sin(6 * np.pi * s)], axis=1)
+    T_world_camera = make_transform(Rotation.from_rotvec(rotvec).as_matrix(), position)
+    angle = door_max_rad * np.clip((s - 0.15) / 0.7, 0.0, 1.0)
+    R_door = rotation_about_axis(DOOR_AXIS_WORLD, angle)
+    T_world_door = make_transform(R_door, DOOR_HINGE_WORLD - R_door @ DOOR_HINGE_WORLD)
+    rects = [
+        Rect(fixed(frame_axes([-2.5, -1.6, 2.5], [1, 0, 0], [0, 1, 0])), 5.0, 3.2, noise_texture(rng, 5.0, 3.2), LABEL_STATIC),
+        Rect(fixed(frame_axes([-2.5, 1.2, -0.5], [1, 0, 0], [0, 0, 1])), 5.0, 3.0, noise_texture(rng, 5.0, 3.0), LABEL_STATIC),
+        Rect(fixed(frame_axes([-2.0, -1.6, -0.5], [0, 0, 1], [0, 1, 0])), 3.0, 2.8, noise_texture(rng, 3.0, 2.8), LABEL_STATIC),
+        Rect(fixed(frame_axes([2.0, -1.6, -0.5], [0, 0, 1], [0, 1, 0])), 3.0, 2.8, noise_texture(rng, 3.0, 2.8), LABEL_STATIC),
+        Rect(fixed(frame_axes([0.2, -0.5, 2.3], [1, 0, 0], [0, 1, 0])), 0.6, 0.8, noise_texture(rng, 0.6, 0.8), LABEL_INTERIOR),
+    ]
+    door_canonical = frame_axes([0.2, -0.5, 2.0], [1, 0, 0], [0, 1, 0])
+    rects.append(Rect(lambda i: T_world_door[i] @ door_canonical, 0.6, 0.8, noise_texture(rng, 0.6, 0.8), LABEL_DOOR))
+    if hand:
+        # The hand moves independently of both camera and scene, ~0.7 m in front of the camera.
+        def T_world_hand(i: int) -> np.ndarray:
+            wobble = make_transform(Rotation.from_rotvec([0.3 * np.sin(0.3 * i), 0.2 * np.cos(0.2 * i), 0.4 * s[i]]).as_matrix(),
+                                    [0.15 * np.sin(0.25 * i) - 0.05, 0.1 * np.cos(0.17 * i) - 0.05, 0.75])
+            return T_world_camera[0] @ wobble @ frame_axes([-0.25, -0.17, 0.0], [1, 0, 0], [0, 1, 0])
+
+        rects.append(Rect(T_world_hand, 0.5, 0.34, noise_texture(rng, 0.5, 0.34), LABEL_HAND, ellipse=True))
+    return Scene(rects, T_world_camera, T_world_door, K, width, height)
+
+
+def write_scene(scene: Scene, root: Path, hand_masks: bool = False, object_masks: bool = False,
+                depth_noise_m: float = 0.001, seed: int = 1) -> Path:
+    """Render every frame into a capture folder (depth noise sigma = depth_noise_m * z^2)."""
+    rng = np.random.default_rng(seed)
+    intrinsics = CaptureIntrinsics(scene.width, scene.height, scene.K[0, 0], scene.K[1, 1], scene.K[0, 2],
+                                   scene.K[1, 2], depth_scale=1000.0, fps=15.0)
+    writer = CaptureWriter(root, intrinsics)
+    for i in range(len(scene.T_world_camera)):
+        rgb, depth, label = render(scene.rects, scene.T_world_camera[i], scene.K, scene.width, scene.height, i)
+        depth = np.where(depth > 0, depth + rng.normal(0.0, 1.0, depth.shape) * depth_noise_m * depth**2, 0.0)
+        writer.write_frame(i, rgb, depth, hand_mask=(label == LABEL_HAND) if hand_masks else None,
+                           object_mask=(label == LABEL_DOOR) if object_masks else None)
+    return root
+
+
+def ate_m(T_world_camera_est: np.ndarray, T_world_camera_true: np.ndarray) -> tuple[float, float]:
+    """(position RMSE metres, max rotation error degrees) after mapping both through frame 0."""
+    T_est = invert_transform(T_world_camera_est[0]) @ T_world_camera_est
+    T_true = invert_transform(T_world_camera_true[0]) @ T_world_camera_true
+    position = np.linalg.norm(T_est[:, :3, 3] - T_true[:, :3, 3], axis=1)
+    R_err = np.swapaxes(T_true[:, :3, :3], 1, 2) @ T_est[:, :3, :3]
+    angle = np.degrees(np.linalg.norm(Rotation.from_matrix(R_err).as_rotvec(), axis=1))
+    return float(np.sqrt(np.mean(position**2))), float(angle.max())
+
+
+# ---------------------------------------------------------------------------------------
+# Synthetic known-answer tests
+
+
+FRAMES = 36
+
+
+@pytest.fixture(scope="module")
+def scenes(tmp_path_factory) -> dict[str, tuple[Scene, Path]]:
+    root = tmp_path_factory.mktemp("tracking")
+    plain = make_scene(FRAMES, hand=False)
+    with_hand = make_scene(FRAMES, hand=True)
+    return {
+        "plain": (plain, write_scene(plain, root / "plain")),
+        "hand": (with_hand, write_scene(with_hand, root / "hand")),
+        "hand_masked": (with_hand, write_scene(with_hand, root / "hand_masked", hand_masks=True, object_masks=True)),
+    }
+
+
+def test_static_scene_tracks_to_millimetres(scenes):
+    scene, root = scenes["plain"]
+    calls = []
+    trajectory = track_camera(load_capture(root), progress=lambda done, total: calls.append((done, total)))
+    assert isinstance(trajectory, CameraTrajectory)
+    assert calls[-1] == (FRAMES, FRAMES) and len(calls) == FRAMES
+    assert trajectory.tracked.all()
+    assert trajectory.keyframes[0] == 0
+    np.testing.assert_allclose(trajectory.T_world_camera[0], np.eye(4), atol=1e-9)
+    rmse, rot_deg = ate_m(trajectory.T_world_camera, scene.T_world_camera)
+    # 0.3 m / 17 deg of motion with 1 mm * z^2 depth noise: measured ~1-2 mm, 0.1 deg.
+    assert rmse < 0.01 and rot_deg < 0.5, (rmse, rot_deg)
+
+
+def test_hand_covering_a_quarter_of_the_view_does_not_drag_the_camera(scenes):
+    """The hand (~25 % of the image) and the opening door move independently; without
+    masks RANSAC must still pick the static majority, and with masks it must do no worse."""
+    plain_scene, plain_root = scenes["plain"]
+    scene, root = scenes["hand"]
+    _, masked_root = scenes["hand_masked"]
+    hand_fraction = np.mean([render(scene.rects, scene.T_world_camera[i], scene.K, scene.width, scene.height, i)[2]
+                             == LABEL_HAND for i in (0, FRAMES // 2)])
+    assert 0.15 < hand_fraction < 0.35
+    rmse_plain, _ = ate_m(track_camera(load_capture(plain_root)).T_world_camera, plain_scene.T_world_camera)
+    rmse_hand, rot_hand = ate_m(track_camera(load_capture(root)).T_world_camera, scene.T_world_camera)
+    rmse_masked, rot_masked = ate_m(track_camera(load_capture(masked_root)).T_world_camera, scene.T_world_camera)
+    # A dragged camera would be off by centimetres (the hand moves ~0.15 m); the robust
+    # estimate stays within a few millimetres of the hand-free run.
+    assert rmse_hand < rmse_plain + 0.005 and rot_hand < 0.5, (rmse_plain, rmse_hand)
+    assert rmse_masked < rmse_plain + 0.005 and rot_masked < 0.5, (rmse_plain, rmse_masked)
+
+
+def test_failed_frames_are_interpolated_and_flagged(scenes, tmp_path):
+    """Frames with no depth cannot be registered: they are flagged and interpolated."""
+    scene, root = scenes["plain"]
+    broken = tmp_path / "broken"
+    shutil.copytree(root, broken)
+    for i in (10, 11):
+        cv2.imwrite(str(broken / "depth" / f"{i:06d}.png"), np.zeros((scene.height, scene.width), np.uint16))
+    trajectory = track_camera(load_capture(broken))
+    assert not trajectory.tracked[10] and not trajectory.tracked[11]
+    assert trajectory.tracked.sum() == FRAMES - 2
+    rmse, _ = ate_m(trajectory.T_world_camera, scene.T_world_camera)
+    assert rmse < 0.01
+    # The interpolated pose lies between its neighbours.
+    t = trajectory.T_world_camera[:, :3, 3]
+    assert np.linalg.norm(t[10] - t[9]) < np.linalg.norm(t[12] - t[9]) + 1e-9
+
+
+def test_relocalises_after_losing_every_track(scenes, tmp_path):
+    """Three black frames (lens covered) lose every KLT track; ORB relocalisation against the
+    stored keyframes must bring the camera back without a jump."""
+    scene, root = scenes["plain"]
+    covered = tmp_path / "covered"
+    shutil.copytree(root, covered)
+    for i in (14, 15, 16):
+        cv2.imwrite(str(covered / "rgb" / f"{i:06d}.png"), np.zeros((scene.height, scene.width, 3), np.uint8))
+    trajectory = track_camera(load_capture(covered))
+    assert not trajectory.tracked[14:17].any()
+    assert trajectory.tracked[17:].all()
+    assert 17 in trajectory.keyframes  # relocalised frames start a new keyframe
+    tracked = trajectory.tracked
+    rmse, rot_deg = ate_m(trajectory.T_world_camera[tracked], scene.T_world_camera[tracked])
+    assert rmse < 0.01 and rot_deg < 0.5, (rmse, rot_deg)
+    # The covered frames are interpolated across 4 frames of curved motion: looser.
+    rmse_all, rot_all_deg = ate_m(trajectory.T_world_camera, scene.T_world_camera)
+    assert rmse_all < 0.015 and rot_all_deg < 2.0, (rmse_all, rot_all_deg)
+
+
+def test_untrackable_capture_raises_with_reason(tmp_path):
+    intrinsics = CaptureIntrinsics(64, 48, 50.0, 50.0, 31.5, 23.5, depth_scale=1000.0, fps=15.0)
+    writer = CaptureWriter(tmp_path / "flat", intrinsics)
+    for i in range(3):
+        writer.write_frame(i, np.full((48, 64, 3), 128, np.uint8), np.ones((48, 64)))
+    with pytest.raises(ReconstructionError, match=r"frame 0\): only 0 corners with valid depth"):
+        track_camera(load_capture(tmp_path / "flat"))
+
+
+def test_lost_view_raises_when_most_frames_fail(scenes, tmp_path):
+    scene, root = scenes["plain"]
+    broken = tmp_path / "nodepth"
+    shutil.copytree(root, broken)
+    for i in range(1, FRAMES):
+        cv2.imwrite(str(broken / "depth" / f"{i:06d}.png"), np.zeros((scene.height, scene.width), np.uint16))
+    with pytest.raises(ReconstructionError, match=r"only 1 of 36 frames could be registered.*too few tracked features"):
+        track_camera(load_capture(broken))
+
+
+# ---------------------------------------------------------------------------------------
+# Real data: ten TUM fr1_xyz frames against motion capture
+
+
+def write_tum_capture(root: Path) -> Path:
+    """Copy the TUM frames into a FunREC capture folder, undistorted.
+
+    The images are undistorted (colour bilinear, depth nearest so that no depth is mixed
+    across edges) with the same K, because the pinhole model of FORMATS.md has no
+    distortion and fr1's k1 = 0.26 moves corner pixels by several pixels.
+    """
+    (root / "rgb").mkdir(parents=True)
+    (root / "depth").mkdir()
+    intrinsics = {"width": 640, "height": 480, "fx": TUM_K[0, 0], "fy": TUM_K[1, 1], "cx": TUM_K[0, 2],
+                  "cy": TUM_K[1, 2], "depth_scale": 5000.0, "fps": 30.0}
+    (root / "intrinsics.json").write_text(json.dumps(intrinsics))
+    map_u, map_v = cv2.initUndistortRectifyMap(TUM_K, TUM_DISTORTION, None, TUM_K, (640, 480), cv2.CV_32FC1)
+    for n in range(1, 11):
+        rgb = cv2.imread(str(TUM_DIR / "rgb" / f"{n}.png"), cv2.IMREAD_UNCHANGED)
+        depth = cv2.imread(str(TUM_DIR / "depth" / f"{n}.png"), cv2.IMREAD_UNCHANGED)
+        cv2.imwrite(str(root / "rgb" / f"{n - 1:06d}.png"), cv2.remap(rgb, map_u, map_v, cv2.INTER_LINEAR))
+        cv2.imwrite(str(root / "depth" / f"{n - 1:06d}.png"), cv2.remap(depth, map_u, map_v, cv2.INTER_NEAREST))
+    return root
+
+
+def tum_ground_truth() -> np.ndarray:
+    data = json.loads((TUM_DIR / "ground_truth.json").read_text())
+    return np.array([data[str(n)]["transformation"] for n in range(1, 11)], dtype=np.float64)
+
+
+@pytest.fixture(scope="module")
+def tum_capture(tmp_path_factory):
+    if not TUM_DIR.is_dir():
+        pytest.skip(f"real data not present at {TUM_DIR}")
+    return load_capture(write_tum_capture(tmp_path_factory.mktemp("tum") / "capture"))
+
+
+def test_tum_fr1_xyz_ate_under_one_centimetre(tum_capture):
+    trajectory = track_camera(tum_capture)
+    assert trajectory.tracked.all()
+    rmse, rot_deg = ate_m(trajectory.T_world_camera, tum_ground_truth())
+    # Measured 5.9 mm RMSE / 0.86 deg max over 0.11 m and 5.3 deg of motion. The residual is
+    # mostly along the viewing direction, the size expected from fr1's unsynchronised
+    # colour and depth (~15 ms apart at ~0.45 m/s); 1 cm is the issue's target.
+    assert rmse < 0.010, rmse
+    assert rot_deg < 1.5, rot_deg
+    relative = invert_transform(trajectory.T_world_camera[:-1]) @ trajectory.T_world_camera[1:]
+    gt = tum_ground_truth()
+    relative_true = invert_transform(gt[:-1]) @ gt[1:]
+    R_err = np.swapaxes(relative_true[:, :3, :3], 1, 2) @ relative[:, :3, :3]
+    rpe_deg = np.degrees(np.linalg.norm(Rotation.from_matrix(R_err).as_rotvec(), axis=1))
+    assert rpe_deg.max() < 1.0, rpe_deg
+
+
+def test_config_defaults_are_documented():
+    assert TrackingConfig().min_inliers < TrackingConfig().keyframe_min_inliers
+    assert math.isclose(TrackingConfig().keyframe_max_rotation_rad, math.radians(20.0))
+
+
+@pytest.mark.slow
+def test_synthetic_smoke_suite(tmp_path_factory):
+    """The project's generator (rooms with a hand opening a door or drawer, Kinect-v1 depth
+    noise, ~8 cm of camera motion per frame): measured ATE 3.5 / 10.7 / 13.0 mm."""
+    if importlib.util.find_spec("funrec.synth") is None:
+        pytest.skip("synthetic generator not available")
+    from funrec.camera_poses import read_camera_poses
+    from funrec.synth import generate_suite
+
+    for root in generate_suite(tmp_path_factory.mktemp("smoke"), suite="smoke"):
+        trajectory = track_camera(load_capture(root))
+        rmse, rot_deg = ate_m(trajectory.T_world_camera, read_camera_poses(root / "gt" / "camera_poses.txt").T_world_camera)
+        assert trajectory.tracked.all(), root.name
+        assert rmse < 0.025 and rot_deg < 1.5, (root.name, rmse, rot_deg)
