@@ -1,0 +1,498 @@
+"""Stage 5: part poses and articulation refined jointly on a pose graph with loop closures.
+
+Implements the paper's L(T, l, phi) (eq. part_pose_graph) with the poses parametrised as joint
+transforms T_i = J(a, p, s_i), so the refined poses are joint transforms by construction.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.optimize import least_squares
+from scipy.spatial.transform import RigidTransform
+
+from funrec.articulation import PartEstimate
+from funrec.geometry.fitting import fit_prismatic_motions, fit_revolute_motions, ransac_rigid
+from funrec.geometry.joints import closest_point_on_axis_to_origin, joint_transforms
+from funrec.geometry.transforms import invert_transform, rotation_about_axis
+from funrec.point_tracks import PointTracks
+from funrec.typed import BoolArray, FloatArray, IntArray
+
+logger = logging.getLogger(__name__)
+
+FD_STEP = 1e-6
+"""Central-difference step (rad, m) for the per-edge pose-graph Jacobian: truncation ~1e-12,
+round-off ~1e-10 relative, far below the solver tolerances."""
+
+
+@dataclass(frozen=True)
+class PartMotionConfig:
+    """Stage-5 settings; lengths in metres, frame offsets in frames."""
+
+    use_pose_graph: bool = True
+    """False returns the stage-3 initialisation unchanged (ablation)."""
+    use_loop_closures: bool = True
+    """False keeps only consecutive-frame edges."""
+    use_joint_constraint: bool = True
+    """False optimises free SE(3) poses, then fits the joint to them (ablation)."""
+    use_track_term: bool = True
+    """Add residuals J(s_i) x_l - tau_li of every part track (joint-constrained mode only)."""
+    loop_stride: int = 5
+    """Every loop_stride-th frame gets loop closures."""
+    loop_offsets: tuple[int, ...] = (10, 20, 40, 80)
+    """Frame offsets of the loop-closure partners of such a frame."""
+    min_correspondences: int = 8
+    """Tracks two frames must share for an edge: RANSAC needs 3, and its information matrix
+    becomes meaningful with a few more."""
+    ransac_inlier_m: float = 0.025
+    """RANSAC inlier distance: ~3.5 sigma of the difference of two 3 mm-noise samples."""
+    ransac_iterations: int = 64
+    """Three-point hypotheses per edge (99.9 % success at 55 % outliers)."""
+    loop_regulariser: float = 100.0
+    """mu of the paper. A loop's optimal confidence is l = (mu / (mu + f))^2 for its chi-square
+    cost f (6 dof when consistent): f = 6 keeps l = 0.89, f = 17 (99 %) 0.73, f = 600 < 0.03."""
+    track_weight: float = 1.0
+    """Weight of the whitened track residuals relative to the pose-graph terms."""
+    track_outlier_sigma: float = 4.0
+    """Track observations further than this many noise sigmas (3D) from the initial joint model
+    are left out of the track term."""
+    max_evaluations: int = 60
+    """Residual evaluations allowed to the solver."""
+
+
+@dataclass(frozen=True)
+class PartMotion:
+    """Refined articulation and poses of one part (world frame)."""
+
+    joint_type: str
+    """"revolute" or "prismatic"."""
+    axis_world: FloatArray
+    """(3,) unit axis."""
+    pivot_world: FloatArray | None
+    """(3,) revolute axis point closest to the origin; None for prismatic."""
+    frames: IntArray
+    """(F_k,) frame indices (those of the stage-3 estimate)."""
+    states: FloatArray
+    """(F_k,) joint states; frames[0] is the canonical state 0."""
+    state_range: tuple[float, float]
+    """(min, max) of the states."""
+    T_world_part: FloatArray
+    """(F_k, 4, 4) joint_transforms(joint_type, axis, pivot, states): canonical -> posed part."""
+    edge_frames: IntArray
+    """(E, 2) frame indices (i, j) of the pose-graph edges."""
+    edge_is_loop: BoolArray
+    """(E,) True for loop closures, False for consecutive edges."""
+    edge_confidence: FloatArray
+    """(E,) optimised loop-closure confidence l_ij in [0, 1] (1 for consecutive edges)."""
+    edge_chi2: FloatArray
+    """(E,) final f_ij = e^T Omega e of each edge."""
+    point_sigma_m: float
+    """Track noise estimated from the RANSAC inliers, metres."""
+    track_rms_init_m: float
+    """RMS track residual under the stage-3 joint, metres."""
+    track_rms_m: float
+    """RMS track residual under the refined joint, metres."""
+    evaluations: int
+    """Residual evaluations used by the solver (0 when the pose graph is off)."""
+
+
+@dataclass(frozen=True)
+class _Edges:
+    """Relative part motions measured by RANSAC, with their information."""
+
+    i: IntArray
+    """(E,) position of the first frame in the part's frame list."""
+    j: IntArray
+    """(E,) position of the second frame."""
+    loop: BoolArray
+    """(E,) loop closure or consecutive."""
+    M: FloatArray
+    """(E, 4, 4) measured world-frame motion with p_j = M p_i."""
+    centre: FloatArray
+    """(E, 3) centroid of the inlier points at frame j: the error is expressed there."""
+    sqrt_info: FloatArray
+    """(E, 6, 6) L with L^T L = Omega, for exp-coordinate order (rotation, translation)."""
+
+
+def _pairs(num: int, config: PartMotionConfig) -> list[tuple[int, int, bool]]:
+    pairs = [(k, k + 1, False) for k in range(num - 1)]
+    if config.use_loop_closures:
+        pairs += [(k, k + d, True) for k in range(0, num, config.loop_stride) for d in config.loop_offsets if k + d < num]
+    return pairs
+
+
+def _measure_edges(p: FloatArray, vis: BoolArray, config: PartMotionConfig, rng: np.random.Generator) -> tuple[_Edges, float]:
+    """RANSAC every pair; Omega = sum_k A_k^T A_k / sigma_r^2 with A_k = [-[q_k]x, I], the
+    Gauss-Newton information of a rigid fit of the inliers q_k (relative to their centroid)."""
+    rows, rms = [], []
+    for i, j, loop in _pairs(len(p), config):
+        common = np.flatnonzero(vis[i] & vis[j])
+        if len(common) < config.min_correspondences:
+            continue
+        fit = ransac_rigid(p[i, common], p[j, common], np.ones(len(common)), config.ransac_inlier_m, rng, config.ransac_iterations)
+        if fit.inliers.sum() < config.min_correspondences:
+            continue
+        q = p[j, common[fit.inliers]]
+        centre = q.mean(0)
+        q = q - centre
+        info = np.zeros((6, 6))
+        info[:3, :3] = (q**2).sum() * np.eye(3) - q.T @ q
+        info[3:, 3:] = len(q) * np.eye(3)
+        rows.append((i, j, loop, fit.T_dst_src, centre, info))
+        if not loop:
+            rms.append(fit.rms_m)
+    if not rows:
+        raise ValueError("no frame pair shares enough part tracks for a pose-graph edge")
+    sigma_r = float(np.median(rms if rms else [r[5][3, 3] for r in rows])) / np.sqrt(3.0)
+    info = np.stack([r[5] for r in rows]) / sigma_r**2
+    L = np.swapaxes(np.linalg.cholesky(info), -1, -2)
+    edges = _Edges(
+        i=np.array([r[0] for r in rows]),
+        j=np.array([r[1] for r in rows]),
+        loop=np.array([r[2] for r in rows]),
+        M=np.stack([r[3] for r in rows]),
+        centre=np.stack([r[4] for r in rows]),
+        sqrt_info=L,
+    )
+    return edges, sigma_r / np.sqrt(2.0)
+
+
+def _edge_errors(edges: _Edges, delta: FloatArray) -> FloatArray:
+    """(E, 6) whitened L log(C^-1 Delta M^-1 C): model motion Delta (E, 4, 4) against the
+    measurement, in a frame at the inlier centroid. The paper writes log(T_i^-1 T_j T_i->j);
+    this is the same error for a world-frame measurement, up to an adjoint absorbed in Omega."""
+    E = delta @ invert_transform(edges.M)
+    C = np.tile(np.eye(4), (len(E), 1, 1))
+    C[:, :3, 3] = edges.centre
+    xi = RigidTransform.from_matrix(invert_transform(C) @ E @ C).as_exp_coords()
+    return np.einsum("eij,ej->ei", edges.sqrt_info, xi)
+
+
+class _JointProblem:
+    """Residuals and sparse Jacobian of L(phi, l) with T_i = J(a(u), q(w), s_i), plus tracks."""
+
+    def __init__(self, part: PartEstimate, edges: _Edges, obs: tuple[IntArray, IntArray, FloatArray] | None,
+                 sigma_p: float, config: PartMotionConfig) -> None:
+        self.revolute = part.joint_type == "revolute"
+        self.a0 = part.axis_world / np.linalg.norm(part.axis_world)
+        self.B = np.linalg.svd(np.eye(3) - np.outer(self.a0, self.a0))[0][:, :2]
+        self.q0 = part.pivot_world if self.revolute else np.zeros(3)
+        self.edges, self.config = edges, config
+        self.s_init = part.states.copy()
+        used = np.zeros(len(part.frames), dtype=bool)
+        used[edges.i] = used[edges.j] = True
+        if obs is not None:
+            used[obs[0]] = True
+        used[0] = False  # canonical state fixed at 0
+        self.var = np.flatnonzero(used)
+        self.col_of_frame = np.full(len(part.frames), -1)
+        self.n_joint = 4 if self.revolute else 2
+        self.col_of_frame[self.var] = self.n_joint + np.arange(len(self.var))
+        self.n_loop = int(edges.loop.sum())
+        self.loop_col = np.full(len(edges.i), -1)
+        self.loop_col[edges.loop] = self.n_joint + len(self.var) + np.arange(self.n_loop)
+        self.obs = obs
+        self.n_tracks = 0 if obs is None else int(obs[1].max()) + 1
+        self.x_col0 = self.n_joint + len(self.var) + self.n_loop
+        self.track_scale = np.sqrt(config.track_weight) / sigma_p
+
+    def unpack(self, theta: FloatArray) -> tuple[FloatArray, FloatArray | None, FloatArray, FloatArray, FloatArray]:
+        a = self.a0 + self.B @ theta[:2]
+        a = a / np.linalg.norm(a)
+        q = self.q0 + self.B @ theta[2:4] if self.revolute else None
+        s = self.s_init.copy()
+        s[0] = 0.0
+        s[self.var] = theta[self.n_joint : self.n_joint + len(self.var)]
+        b = theta[self.n_joint + len(self.var) : self.x_col0]
+        x = theta[self.x_col0 :].reshape(-1, 3)
+        return a, q, s, b, x
+
+    def initial(self) -> FloatArray:
+        theta = np.zeros(self.x_col0)
+        theta[self.n_joint : self.n_joint + len(self.var)] = self.s_init[self.var]
+        theta[self.n_joint + len(self.var) :] = 1.0
+        if self.obs is None:
+            return theta
+        f, track, tau = self.obs
+        T_inv = invert_transform(joint_transforms(_joint_type(self.revolute), self.a0, self.q0, self.s_init))
+        back = np.einsum("nij,nj->ni", T_inv[f, :3, :3], tau) + T_inv[f, :3, 3]
+        x = np.stack([np.bincount(track, back[:, k], self.n_tracks) for k in range(3)], -1) / np.bincount(track, minlength=self.n_tracks)[:, None]
+        return np.concatenate([theta, x.ravel()])
+
+    def _edge_errors_at(self, theta_joint: FloatArray, ds: FloatArray) -> FloatArray:
+        a = self.a0 + self.B @ theta_joint[:2]
+        a = a / np.linalg.norm(a)
+        q = self.q0 + self.B @ theta_joint[2:4] if self.revolute else None
+        J = joint_transforms(_joint_type(self.revolute), a, q, ds)
+        return _edge_errors(self.edges, J)
+
+    def residuals(self, theta: FloatArray) -> FloatArray:
+        a, q, s, b, x = self.unpack(theta)
+        e = joint_transforms(_joint_type(self.revolute), a, q, s[self.edges.j] - s[self.edges.i])
+        err = _edge_errors(self.edges, e)
+        scale = np.ones(len(err))
+        scale[self.edges.loop] = b
+        parts = [(err * scale[:, None]).ravel(), np.sqrt(self.config.loop_regulariser) * (b - 1.0)]
+        if self.obs is not None:
+            f, track, tau = self.obs
+            parts.append(self.track_scale * (self._track_points(a, q, s[f], x[track]) - tau).ravel())
+        return np.concatenate(parts)
+
+    def _track_points(self, a: FloatArray, q: FloatArray | None, s: FloatArray, x: FloatArray) -> FloatArray:
+        if not self.revolute:
+            return x + s[:, None] * a
+        v = x - q
+        c, sn = np.cos(s)[:, None], np.sin(s)[:, None]
+        return v * c + np.cross(a, v) * sn + a * (v @ a)[:, None] * (1 - c) + q
+
+    def track_jacobian(self, theta: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """Analytic d(track residual)/d(u, w, s_f, x_l): (n, 3, n_joint), (n, 3), (n, 3, 3)."""
+        a, q, s_all, _, x = self.unpack(theta)
+        f, track, _ = self.obs
+        s, xl = s_all[f], x[track]
+        raw = self.a0 + self.B @ theta[:2]
+        da_du = (np.eye(3) - np.outer(a, a)) @ self.B / np.linalg.norm(raw)
+        n = len(f)
+        c, sn = np.cos(s), np.sin(s)
+        if self.revolute:
+            v = xl - q
+            R = rotation_about_axis(a, s)
+            Rv = np.einsum("nij,nj->ni", R, v)
+            d_s = np.cross(a, Rv)
+            d_x = R
+            skew_v = _skew(v)
+            d_a = -skew_v * sn[:, None, None] + (1 - c)[:, None, None] * (a[None, :, None] * v[:, None, :] + (v @ a)[:, None, None] * np.eye(3))
+            d_joint = np.concatenate([d_a @ da_du, (np.eye(3) - R) @ self.B], axis=-1)
+        else:
+            d_s = np.broadcast_to(a, (n, 3))
+            d_x = np.broadcast_to(np.eye(3), (n, 3, 3))
+            d_joint = s[:, None, None] * np.broadcast_to(da_du, (n, 3, 2))
+        k = self.track_scale
+        return k * d_joint, k * d_s, k * d_x, f
+
+    def jacobian(self, theta: FloatArray) -> sp.csr_matrix:
+        a, q, s, b, _ = self.unpack(theta)
+        ed = self.edges
+        ds = s[ed.j] - s[ed.i]
+        E = len(ds)
+        base = self._edge_errors_at(theta[: self.n_joint], ds)
+        d_local = np.zeros((E, 6, self.n_joint + 1))
+        for k in range(self.n_joint + 1):
+            h = np.zeros(self.n_joint + 1)
+            h[k] = FD_STEP
+            plus = self._edge_errors_at(theta[: self.n_joint] + h[:-1], ds + h[-1])
+            minus = self._edge_errors_at(theta[: self.n_joint] - h[:-1], ds - h[-1])
+            d_local[:, :, k] = (plus - minus) / (2 * FD_STEP)
+        scale = np.ones(E)
+        scale[ed.loop] = b
+        d_local *= scale[:, None, None]
+        rows_e = np.arange(6 * E).reshape(E, 6)
+        R, C, V = [], [], []
+        for k in range(self.n_joint):
+            R.append(rows_e.ravel())
+            C.append(np.full(6 * E, k))
+            V.append(d_local[:, :, k].ravel())
+        for frames, sign in ((ed.j, 1.0), (ed.i, -1.0)):
+            col = self.col_of_frame[frames]
+            m = col >= 0
+            R.append(rows_e[m].ravel())
+            C.append(np.repeat(col[m], 6))
+            V.append(sign * d_local[m, :, -1].ravel())
+        lp = np.flatnonzero(ed.loop)
+        R.append(rows_e[lp].ravel())
+        C.append(np.repeat(self.loop_col[lp], 6))
+        V.append(base[lp].ravel())
+        R.append(6 * E + np.arange(self.n_loop))
+        C.append(self.loop_col[lp])
+        V.append(np.full(self.n_loop, np.sqrt(self.config.loop_regulariser)))
+        n_rows = 6 * E + self.n_loop
+        if self.obs is not None:
+            d_joint, d_s, d_x, f = self.track_jacobian(theta)
+            track = self.obs[1]
+            n = len(f)
+            rows_t = n_rows + np.arange(3 * n).reshape(n, 3)
+            for k in range(self.n_joint):
+                R.append(rows_t.ravel())
+                C.append(np.full(3 * n, k))
+                V.append(d_joint[:, :, k].ravel())
+            col = self.col_of_frame[f]
+            m = col >= 0
+            R.append(rows_t[m].ravel())
+            C.append(np.repeat(col[m], 3))
+            V.append(d_s[m].ravel())
+            R.append(np.repeat(rows_t, 3, axis=1).ravel())
+            C.append((self.x_col0 + 3 * track[:, None, None] + np.arange(3)[None, None, :]).repeat(3, axis=1).ravel())
+            V.append(d_x.ravel())
+            n_rows += 3 * n
+        n_cols = self.x_col0 + 3 * self.n_tracks
+        return sp.csr_matrix((np.concatenate(V), (np.concatenate(R), np.concatenate(C))), shape=(n_rows, n_cols))
+
+
+def _skew(v: FloatArray) -> FloatArray:
+    """(..., 3, 3) cross-product matrices [v]x."""
+    S = np.zeros((*v.shape[:-1], 3, 3))
+    S[..., 0, 1], S[..., 0, 2], S[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    return S - np.swapaxes(S, -1, -2)
+
+
+def _joint_type(revolute: bool) -> str:
+    return "revolute" if revolute else "prismatic"
+
+
+def _solve_free_poses(edges: _Edges, T_init: FloatArray, config: PartMotionConfig) -> tuple[FloatArray, FloatArray, int]:
+    """Ablation: free SE(3) poses T_i = exp(d_i) T_i^0 (frame 0 fixed) on the same L(T, l).
+
+    The Jacobian is left to scipy's finite differences with its sparsity pattern (each edge
+    touches two poses and its confidence), which group columns so few evaluations are needed.
+    """
+    F, E, n_loop = len(T_init), len(edges.i), int(edges.loop.sum())
+    loop_idx = np.flatnonzero(edges.loop)
+    mu = np.sqrt(config.loop_regulariser)
+
+    def poses(theta: FloatArray) -> FloatArray:
+        T = T_init.copy()
+        T[1:] = RigidTransform.from_exp_coords(theta[: 6 * (F - 1)].reshape(-1, 6)).as_matrix() @ T_init[1:]
+        return T
+
+    def residuals(theta: FloatArray) -> FloatArray:
+        T = poses(theta)
+        b = theta[6 * (F - 1) :]
+        err = _edge_errors(edges, T[edges.j] @ invert_transform(T[edges.i]))
+        err[loop_idx] *= b[:, None]
+        return np.concatenate([err.ravel(), mu * (b - 1.0)])
+
+    S = sp.lil_matrix((6 * E + n_loop, 6 * (F - 1) + n_loop), dtype=int)
+    for e in range(E):
+        for f in (edges.i[e], edges.j[e]):
+            if f > 0:
+                S[6 * e : 6 * e + 6, 6 * (f - 1) : 6 * f] = 1
+    S[6 * loop_idx[:, None] + np.arange(6), 6 * (F - 1) + np.arange(n_loop)[:, None]] = 1
+    S[6 * E + np.arange(n_loop), 6 * (F - 1) + np.arange(n_loop)] = 1
+    theta0 = np.concatenate([np.zeros(6 * (F - 1)), np.ones(n_loop)])
+    lb = np.concatenate([np.full(6 * (F - 1), -np.inf), np.zeros(n_loop)])
+    ub = np.concatenate([np.full(6 * (F - 1), np.inf), np.ones(n_loop)])
+    res = least_squares(residuals, theta0, jac_sparsity=S.tocsr(), bounds=(lb, ub), method="trf", x_scale="jac",
+                        max_nfev=config.max_evaluations)
+    return poses(res.x), res.x[6 * (F - 1) :], int(res.nfev)
+
+
+def _solve_joint(part: PartEstimate, edges: _Edges, obs: tuple[IntArray, IntArray, FloatArray] | None, sigma_p: float,
+                 config: PartMotionConfig) -> tuple[FloatArray, FloatArray | None, FloatArray, FloatArray, FloatArray, int]:
+    """Minimise L over (a, p, s, l) [and canonical track points] from the stage-3 joint.
+
+    Returns axis (3,), pivot (3,) or None, states (F_k,), edge confidences (E,), whitened edge
+    errors (E, 6) and the number of residual evaluations.
+    """
+    problem = _JointProblem(part, edges, obs, sigma_p, config)
+    theta0 = problem.initial()
+    lb = np.full(len(theta0), -np.inf)
+    ub = np.full(len(theta0), np.inf)
+    b_slice = slice(problem.n_joint + len(problem.var), problem.x_col0)
+    lb[b_slice], ub[b_slice] = 0.0, 1.0
+    res = least_squares(problem.residuals, theta0, jac=problem.jacobian, bounds=(lb, ub), method="trf",
+                        tr_solver="lsmr", x_scale="jac", max_nfev=config.max_evaluations)
+    axis, q, states, b, _ = problem.unpack(res.x)
+    pivot = None if q is None else closest_point_on_axis_to_origin(axis, q)
+    confidence = np.ones(len(edges.i))
+    confidence[edges.loop] = b**2
+    err = _edge_errors(edges, joint_transforms(_joint_type(problem.revolute), axis, q, states[edges.j] - states[edges.i]))
+    return axis, pivot, states, confidence, err, int(res.nfev)
+
+
+def _track_rms(p: FloatArray, vis: BoolArray, T: FloatArray) -> tuple[float, FloatArray, FloatArray]:
+    """RMS residual of tracks under poses T (F, 4, 4) with least-squares canonical points; also
+    the per-observation residual norms (F, M) and the canonical points (M, 3)."""
+    T_inv = invert_transform(T)
+    p0 = np.where(vis[..., None], p, 0.0)
+    back = np.einsum("fij,fnj->fni", T_inv[:, :3, :3], p0) + T_inv[:, None, :3, 3]
+    x = np.where(vis[..., None], back, 0.0).sum(0) / np.maximum(vis.sum(0), 1)[:, None]
+    pred = np.einsum("fij,nj->fni", T[:, :3, :3], x) + T[:, None, :3, 3]
+    res = np.where(vis, np.linalg.norm(p0 - pred, axis=-1), 0.0)
+    return float(np.sqrt((res**2).sum() / max(vis.sum(), 1))), res, x
+
+
+def refine_part_motion(
+    tracks: PointTracks,
+    estimate_part: PartEstimate,
+    config: PartMotionConfig = PartMotionConfig(),  # noqa: B008 (frozen, immutable default)
+    rng: np.random.Generator | None = None,
+) -> PartMotion:
+    """Refine a part's articulation and poses on the pose graph of its tracks (paper eq. L).
+
+    Args:
+        tracks: the point tracks stage 3 used (world frame).
+        estimate_part: one part of stage 3's :class:`~funrec.articulation.ArticulationEstimate`.
+        config: switches and thresholds.
+        rng: generator for RANSAC sampling; None uses ``np.random.default_rng(0)``.
+
+    Returns:
+        :class:`PartMotion` whose poses are joint transforms of its axis, pivot and states.
+    """
+    rng = np.random.default_rng(0) if rng is None else rng
+    part = estimate_part
+    frames = part.frames
+    p = tracks.p_world[frames][:, part.track_indices]
+    vis = tracks.visible[frames][:, part.track_indices] & np.isfinite(p).all(-1)
+    T_init = joint_transforms(part.joint_type, part.axis_world, part.pivot_world, part.states)
+    rms_init, res_init, _ = _track_rms(p, vis, T_init)
+    no_edges = np.zeros((0, 2), dtype=np.int64)
+    if not config.use_pose_graph:
+        return _output(part, part.axis_world, part.pivot_world, part.states, no_edges, np.zeros(0, bool), np.zeros(0), np.zeros(0),
+                       float("nan"), rms_init, rms_init, 0)
+    edges, sigma_p = _measure_edges(p, vis, config, rng)
+    if config.use_joint_constraint:
+        obs = None
+        if config.use_track_term:
+            good = vis & (res_init < config.track_outlier_sigma * np.sqrt(3.0) * sigma_p)
+            good &= good.sum(0) >= 2
+            f, track = np.nonzero(good)
+            obs = (f, np.unique(track, return_inverse=True)[1], p[f, track])
+        axis, pivot, states, confidence, err, evaluations = _solve_joint(part, edges, obs, sigma_p, config)
+    else:
+        T, b, evaluations = _solve_free_poses(edges, T_init, config)
+        centre = np.nanmean(np.where(vis[0][:, None], p[0], np.nan), axis=0)
+        if part.joint_type == "revolute":
+            axis, pivot, states = fit_revolute_motions(T, np.ones(len(T)), centre)
+        else:
+            (axis, states), pivot = fit_prismatic_motions(T, np.ones(len(T)), centre), None
+        confidence = np.ones(len(edges.i))
+        confidence[edges.loop] = b**2
+        err = _edge_errors(edges, T[edges.j] @ invert_transform(T[edges.i]))
+    if axis @ part.axis_world < 0:  # keep stage 3's orientation (largest |state| positive)
+        axis, states = -axis, -states
+    states = states - states[0]
+    T_final = joint_transforms(part.joint_type, axis, pivot, states)
+    rms_final = _track_rms(p, vis, T_final)[0]
+    logger.info("part %s refined: track rms %.4f -> %.4f m in %d evaluations", part.joint_type, rms_init, rms_final, evaluations)
+    return _output(part, axis, pivot, states, np.stack([frames[edges.i], frames[edges.j]], -1), edges.loop, confidence,
+                   (err**2).sum(-1), sigma_p, rms_init, rms_final, evaluations)
+
+
+def _output(part: PartEstimate, axis: FloatArray, pivot: FloatArray | None, states: FloatArray, edge_frames: IntArray,
+            is_loop: BoolArray, confidence: FloatArray, chi2: FloatArray, sigma_p: float, rms_init: float, rms: float,
+            evaluations: int) -> PartMotion:
+    axis = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
+    pivot = None if pivot is None else closest_point_on_axis_to_origin(axis, pivot)
+    return PartMotion(
+        joint_type=part.joint_type,
+        axis_world=axis,
+        pivot_world=pivot,
+        frames=part.frames.copy(),
+        states=np.asarray(states, dtype=np.float64),
+        state_range=(float(np.min(states)), float(np.max(states))),
+        T_world_part=joint_transforms(part.joint_type, axis, pivot, states),
+        edge_frames=np.asarray(edge_frames, dtype=np.int64),
+        edge_is_loop=np.asarray(is_loop, dtype=bool),
+        edge_confidence=np.asarray(confidence, dtype=np.float64),
+        edge_chi2=np.asarray(chi2, dtype=np.float64),
+        point_sigma_m=float(sigma_p),
+        track_rms_init_m=rms_init,
+        track_rms_m=rms,
+        evaluations=evaluations,
+    )
+
+
+__all__ = ["PartMotion", "PartMotionConfig", "refine_part_motion"]
