@@ -43,6 +43,74 @@ def progress_bar(description: str, unit: str = "frame"):
             bar.close()
 
 
+@contextmanager
+def stage_bars():
+    """Yield a ``progress(stage, done, total)`` callback drawing one tqdm bar per stage."""
+    from tqdm import tqdm
+
+    bars: dict[str, Any] = {}
+
+    def update(stage: str, done: int, total: int) -> None:
+        bar = bars.get(stage)
+        if bar is None:
+            for other in bars.values():
+                other.close()
+            bar = bars[stage] = tqdm(total=total, desc=f"{stage:>14}", unit="frame", dynamic_ncols=True, file=sys.stderr)
+        bar.total = total
+        bar.n = done
+        bar.refresh()
+
+    try:
+        yield update
+    finally:
+        for bar in bars.values():
+            bar.close()
+
+
+def _print_summary(summary: Any) -> None:
+    parts = ", ".join(
+        f"{p.name} {p.joint_type} range [{p.state_range[0]:.3f}, {p.state_range[1]:.3f}] "
+        f"{'rad' if p.joint_type == 'revolute' else 'm'} frames {p.frames[0]}-{p.frames[1]}"
+        for p in summary.parts
+    )
+    total = sum(summary.stage_seconds.values())
+    timings = ", ".join(f"{k} {v:.1f} s" for k, v in summary.stage_seconds.items())
+    print(f"twin written to {summary.twin_dir}")
+    print(f"  {len(summary.parts)} part(s): {parts or 'nothing was opened in this capture'}")
+    print(f"  {summary.frame_count} frames in {total:.1f} s ({summary.frame_count / max(total, 1e-9):.1f} frames/s): {timings}")
+    if summary.untracked_frames:
+        print(f"  {summary.untracked_frames} frame(s) could not be registered; their camera poses are interpolated")
+
+
+def _cmd_reconstruct(args: argparse.Namespace) -> int:
+    from funrec.config import config_from_args, load_config_file
+    from funrec.pipeline import ReconstructConfig, reconstruct
+
+    base = load_config_file(ReconstructConfig, args.config) if args.config else None
+    config = config_from_args(ReconstructConfig, args, base)
+    with stage_bars() as progress:
+        summary = reconstruct(args.capture, args.output, config, progress=progress, overwrite=args.overwrite)
+    _print_summary(summary)
+    return 0
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from funrec import synth
+    from funrec.evaluate import evaluate_twin, format_evaluation
+    from funrec.pipeline import reconstruct
+
+    out = Path(args.output)
+    with progress_bar("rendering demo capture") as progress:
+        capture_dir = synth.generate_suite(out / "captures", suite="smoke", only=[args.sequence], progress=progress)[0]
+    with stage_bars() as progress:
+        summary = reconstruct(capture_dir, out / "twin", progress=progress, overwrite=True)
+    _print_summary(summary)
+    print(format_evaluation(evaluate_twin(out / "twin", capture_dir / "gt")))
+    print(f"capture: {capture_dir}  (ground truth in {capture_dir / 'gt'})")
+    print(f"twin:    {out / 'twin'}  (articulation.json, meshes/, masks/)")
+    return 0
+
+
 def _cmd_synth(args: argparse.Namespace) -> int:
     from funrec import synth
 
@@ -105,7 +173,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
-def _add_synth(sub: Any) -> None:
+def _add_synth(sub: Any, selected: bool) -> None:
     p = sub.add_parser(
         "synth",
         help="generate synthetic captures with exact ground truth",
@@ -125,7 +193,7 @@ def _add_synth(sub: Any) -> None:
     p.set_defaults(handler=_cmd_synth)
 
 
-def _add_check(sub: Any) -> None:
+def _add_check(sub: Any, selected: bool) -> None:
     p = sub.add_parser(
         "check",
         help="validate a capture folder and decode every frame",
@@ -136,7 +204,7 @@ def _add_check(sub: Any) -> None:
     p.set_defaults(handler=_cmd_check)
 
 
-def _add_eval(sub: Any) -> None:
+def _add_eval(sub: Any, selected: bool) -> None:
     p = sub.add_parser(
         "eval",
         help="score a twin against ground truth (FORMATS.md section 5)",
@@ -149,12 +217,10 @@ def _add_eval(sub: Any) -> None:
     p.set_defaults(handler=_cmd_eval)
 
 
-def _add_bench(sub: Any) -> None:
-    from funrec.bench import BenchConfig
-    from funrec.config import add_config_arguments
-
+def _add_bench(sub: Any, selected: bool) -> None:
     p = sub.add_parser(
         "bench",
+        usage="funrec bench [--suite-dir DIR] [-o REPORT_DIR] [--only NAME ...] [options]",
         help="run the synthetic benchmark and print the table",
         description="Generate (or reuse) the benchmark suite, reconstruct every sequence in a subprocess "
         "(timeouts and crashes become failure rows), score each twin and print one table in the layout of "
@@ -163,27 +229,74 @@ def _add_bench(sub: Any) -> None:
     p.add_argument("--suite-dir", type=Path, default=Path("bench_suite"), help="suite folder (default: bench_suite)")
     p.add_argument("-o", "--output", type=Path, default=Path("bench_report"), help="report folder (default: bench_report)")
     p.add_argument("--only", nargs="+", metavar="NAME", help="run only these sequences")
-    add_config_arguments(p, BenchConfig)
+    if selected:  # stage modules load only for the command being run
+        from funrec.bench import BenchConfig
+        from funrec.config import add_config_arguments
+
+        add_config_arguments(p, BenchConfig)
     p.set_defaults(handler=_cmd_bench)
 
 
-_COMMANDS: tuple[Callable[[Any], None], ...] = (_add_synth, _add_check, _add_eval, _add_bench)
+def _add_reconstruct(sub: Any, selected: bool) -> None:
+    p = sub.add_parser(
+        "reconstruct",
+        usage="funrec reconstruct CAPTURE -o TWIN [--overwrite] [--config FILE] [stage options]",
+        help="reconstruct a functional twin from a capture folder",
+        description="Track the camera, track points, find the part the person moved and its joint, segment "
+        "it in every frame, fuse meshes, and write a twin folder (FORMATS.md section 2). The twin is written "
+        "to a temporary folder and moved into place only when complete.",
+    )
+    p.add_argument("capture", type=Path, help="capture folder (FORMATS.md section 1)")
+    p.add_argument("-o", "--output", type=Path, required=True, help="twin folder to write")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing twin folder")
+    p.add_argument("--config", type=Path, help="JSON or YAML file of ReconstructConfig fields (unknown keys are errors)")
+    if selected:  # stage modules load only for the command being run
+        from funrec.config import add_config_arguments
+        from funrec.pipeline import ReconstructConfig
+
+        add_config_arguments(p, ReconstructConfig)
+    p.set_defaults(handler=_cmd_reconstruct)
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _add_demo(sub: Any, selected: bool) -> None:
+    p = sub.add_parser(
+        "demo",
+        help="render a synthetic capture, reconstruct it and score the twin",
+        description="The main job on a built-in example: render one sequence of the smoke suite, reconstruct "
+        "its twin and score it against the ground truth.",
+    )
+    p.add_argument("-o", "--output", type=Path, default=Path("demo_output"), help="output folder (default: demo_output)")
+    p.add_argument("--sequence", default="smoke_rev_00", help="smoke-suite sequence to use (default: smoke_rev_00)")
+    p.set_defaults(handler=_cmd_demo)
+
+
+_COMMANDS: dict[str, Callable[[Any, bool], None]] = {
+    "reconstruct": _add_reconstruct,
+    "demo": _add_demo,
+    "synth": _add_synth,
+    "check": _add_check,
+    "eval": _add_eval,
+    "bench": _add_bench,
+}
+
+
+def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    """The full parser; stage options (which need the stage modules) are added only for the
+    command being run, so ``funrec --help`` stays instant."""
     parser = argparse.ArgumentParser(
         prog="funrec",
         description="FunREC: functional digital twins from egocentric RGB-D interaction videos.",
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="log detail and show tracebacks of errors")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for add in _COMMANDS:
-        add(sub)
+    words = [a for a in (sys.argv[1:] if argv is None else argv) if not a.startswith("-")]
+    for name, add in _COMMANDS.items():
+        add(sub, bool(words) and words[0] == name)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    parser = build_parser(argv)
     args = parser.parse_args(argv)
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.WARNING,

@@ -77,7 +77,7 @@ def _add_fields(parser: argparse.ArgumentParser, group: Any, cls: type, prefix: 
         if kind is None:
             continue
         flag = "--" + (prefix + field.name).replace("_", "-").replace(".", "-")
-        help_text = f"{docs.get(field.name, '')} (default: {default})"
+        help_text = f"{docs.get(field.name, '')} (default: {default})".replace("%", "%%")
         if kind is bool:
             group.add_argument(
                 flag, dest=prefix + field.name, action=argparse.BooleanOptionalAction, default=default, help=help_text

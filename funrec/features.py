@@ -137,27 +137,39 @@ def sample_depth(depth_m: FloatArray, uv: FloatArray, window_px: int, max_spread
     return z
 
 
-def depth_edges(depth_m: FloatArray, radius_px: int, max_spread: float) -> BoolArray:
+def depth_edges(depth_m: FloatArray, radius_px: int, max_step: float) -> BoolArray:
     """Pixels within ``radius_px`` of a depth discontinuity (an occlusion boundary).
 
     A 2D feature there is often a T-junction between a foreground edge and the background,
     which slides along the edge as the viewpoint changes instead of following a surface.
+    A discontinuity is a jump between two neighbouring valid pixels, not a large depth range
+    in a window: a floor or wall seen at a slant spans 10 % of its depth across 16 pixels
+    without any occlusion, and must stay trackable.
 
     Args:
         depth_m: (H, W) depth in metres, 0 = no reading (ignored, not an edge).
-        radius_px: half side of the square neighbourhood, pixels.
-        max_spread: an edge is where (max - min) of the valid depths in the neighbourhood
-            exceeds this fraction of the min.
+        radius_px: half side of the square neighbourhood marked around a jump, pixels.
+        max_step: a jump is where two 4-neighbours differ by more than this fraction of
+            the nearer one.
 
     Returns:
         (H, W) bool, True near a depth edge.
     """
-    kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * radius_px + 1, 2 * radius_px + 1))
     depth = depth_m.astype(np.float32)
-    far = np.float32(1e6)
-    deepest = cv2.dilate(depth, kernel)
-    nearest = cv2.erode(np.where(depth > 0, depth, far), kernel)
-    return (nearest < far) & (deepest - nearest > max_spread * nearest)
+    jump = np.zeros(depth.shape, dtype=bool)
+    for axis in (0, 1):
+        a = depth[:-1, :] if axis == 0 else depth[:, :-1]
+        b = depth[1:, :] if axis == 0 else depth[:, 1:]
+        both = (a > 0) & (b > 0)
+        step = both & (np.abs(a - b) > max_step * np.minimum(a, b))
+        if axis == 0:
+            jump[:-1, :] |= step
+            jump[1:, :] |= step
+        else:
+            jump[:, :-1] |= step
+            jump[:, 1:] |= step
+    kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * radius_px + 1, 2 * radius_px + 1))
+    return cv2.dilate(jump.view(np.uint8), kernel).astype(bool)
 
 
 def lift(uv: FloatArray, z: FloatArray, K: FloatArray) -> FloatArray:
