@@ -1,0 +1,130 @@
+"""Tests of funrec.fusion: fragment removal, input validation, chamfer distance and the canonical
+state of the part mesh with true poses and masks, and memory that does not grow with frames."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+# Shared synthetic-sequence helpers (tests/ is on sys.path under pytest's default import mode).
+from test_segmentation import synth_sequence, true_inputs, true_mask
+
+from funrec.fusion import _large_pieces, fuse_tsdf
+from funrec.geometry.transforms import transform_points
+from funrec.metrics import chamfer_distance
+from funrec.segmentation import PartMasks
+
+TARGET_CD_M = 0.015
+"""Project target: scene chamfer distance (static and part) <= 1.5 cm."""
+SAMPLES = 100_000
+"""Surface samples drawn from the meshes for the chamfer distance."""
+
+
+@pytest.fixture(scope="module")
+def small_sequence(request: pytest.FixtureRequest) -> Path:
+    """The cached 40-frame 320x240 door sequence of test_segmentation."""
+    return synth_sequence(request.config.cache.mkdir("funrec_synth"), "seg_rev_320", 7, "door", 40, 320, 240)
+
+
+def true_part_masks(root: Path, frames: np.ndarray) -> PartMasks:
+    capture, gt, _, _, _ = true_inputs(root)
+    return PartMasks.from_masks(frames, np.stack([true_mask(gt, capture, int(f)) for f in frames]))
+
+
+def test_large_pieces_drops_small_fragments() -> None:
+    big = np.array([[0, 1, 2], [1, 2, 3], [2, 3, 4], [3, 4, 5]])
+    small = np.array([[6, 7, 8]])
+    keep = _large_pieces(np.concatenate([big, small]), 9, min_fraction=0.5)
+    np.testing.assert_array_equal(keep, [True, True, True, True, False])
+
+
+def test_fuse_tsdf_validates_inputs(small_sequence: Path) -> None:
+    capture, _, trajectory, frames, T_world_part = true_inputs(small_sequence)
+    masks = true_part_masks(small_sequence, frames[:3])
+    with pytest.raises(ValueError, match="1 part mask sets but 2"):
+        fuse_tsdf(capture, trajectory, [masks], [T_world_part[frames[:3]]] * 2)
+    with pytest.raises(ValueError, match=r"T_world_part\[0\] must be \(3, 4, 4\)"):
+        fuse_tsdf(capture, trajectory, [masks], [T_world_part[frames[:4]]])
+
+
+def test_fuse_tsdf_chamfer_and_canonical_part(small_sequence: Path) -> None:
+    capture, gt, trajectory, frames, T_world_part = true_inputs(small_sequence)
+    meshes = fuse_tsdf(capture, trajectory, [true_part_masks(small_sequence, frames)], [T_world_part[frames]])
+    assert isinstance(meshes.static, trimesh.Trimesh) and len(meshes.parts) == 1
+    assert meshes.static.visual.vertex_colors.shape == (len(meshes.static.vertices), 4)
+    p_static = np.asarray(trimesh.load(gt.points_path("static")).vertices)
+    p_part = np.asarray(trimesh.load(gt.points_path("part_0")).vertices)  # canonical state
+    samples_static = meshes.static.sample(SAMPLES, seed=0)
+    samples_part = meshes.parts[0].sample(SAMPLES // 4, seed=0)
+    cd = chamfer_distance(np.concatenate([samples_static, samples_part]), np.concatenate([p_static, p_part]))
+    assert cd < TARGET_CD_M, f"scene chamfer {100 * cd:.2f} cm"
+    # The part mesh is at the canonical state: far closer to the canonical points than to the
+    # points posed at the most open frame (a wrong pose direction would swap the two).
+    cd_canonical = chamfer_distance(samples_part, p_part)
+    most_open = int(np.argmax(np.abs(gt.parts[0].part.states)))
+    cd_posed = chamfer_distance(samples_part, transform_points(T_world_part[frames[most_open]], p_part))
+    assert cd_canonical < 0.01 and cd_canonical < 0.2 * cd_posed, (cd_canonical, cd_posed)
+
+
+def test_fuse_tsdf_keeps_untracked_part_out_of_static(small_sequence: Path) -> None:
+    """Masks only after the door starts moving: earlier frames see the closed door without a
+    mask, and the static mesh must still leave it out (the part mesh is rendered there)."""
+    capture, gt, trajectory, frames, T_world_part = true_inputs(small_sequence)
+    first, _ = gt.parts[0].intervals[0]
+    tracked = frames[frames >= first]
+    meshes = fuse_tsdf(capture, trajectory, [true_part_masks(small_sequence, tracked)], [T_world_part[tracked]])
+    p_part = np.asarray(trimesh.load(gt.points_path("part_0")).vertices)
+    p_static = np.asarray(trimesh.load(gt.points_path("static")).vertices)
+    samples = meshes.static.sample(SAMPLES, seed=0)
+    from scipy.spatial import cKDTree
+
+    near_part = cKDTree(p_part).query(samples)[0] < 0.005
+    near_static = cKDTree(p_static).query(samples)[0] < 0.005
+    ghost = np.mean(near_part & ~near_static)
+    assert ghost < 0.002, f"{100 * ghost:.2f}% of the static mesh lies on the closed door"
+
+
+_MEMORY_SCRIPT = """
+import json, resource, sys
+import numpy as np
+from dataclasses import replace
+from pathlib import Path
+from test_segmentation import true_inputs, true_mask
+from funrec.fusion import FusionConfig, fuse_tsdf
+from funrec.segmentation import PartMasks
+from funrec.tracking import CameraTrajectory
+root, repeat = Path(sys.argv[1]), int(sys.argv[2])
+capture, gt, trajectory, frames, T_world_part = true_inputs(root)
+# The same views repeated: the volume stays the same size while the frame count grows.
+capture = replace(capture, stems=capture.stems * repeat, rgb_paths=capture.rgb_paths * repeat,
+                  depth_paths=capture.depth_paths * repeat,
+                  mask_paths={k: v * repeat for k, v in capture.mask_paths.items()}, T_world_camera_known=None)
+F = len(trajectory.T_world_camera)
+trajectory = CameraTrajectory(np.tile(trajectory.T_world_camera, (repeat, 1, 1)), np.arange(F * repeat), np.ones(F * repeat, bool))
+masks = PartMasks.from_masks(frames, np.stack([true_mask(gt, capture, int(f)) for f in frames]))
+all_frames = np.concatenate([frames + r * F for r in range(repeat)])
+part_masks = PartMasks(all_frames, masks.png * repeat, masks.height, masks.width, masks.keyframes)
+fuse_tsdf(capture, trajectory, [part_masks], [np.tile(T_world_part[frames], (repeat, 1, 1))], FusionConfig(frame_stride=1))
+print(json.dumps({"frames": F * repeat, "max_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
+"""
+
+
+@pytest.mark.slow
+def test_fuse_tsdf_memory_does_not_grow_with_frames(small_sequence: Path) -> None:
+    """Peak RSS with 4x the frames (same views) stays within a few frames' worth of the 1x run;
+    holding the video would add ~1 MB per 320x240 frame (depth float64 + colour + masks)."""
+    rss = []
+    for repeat in (1, 4):
+        out = subprocess.run([sys.executable, "-c", _MEMORY_SCRIPT, str(small_sequence), str(repeat)],
+                             capture_output=True, text=True, check=True, cwd=Path(__file__).parent)
+        rss.append(json.loads(out.stdout.strip().splitlines()[-1]))
+    extra_frames = rss[1]["frames"] - rss[0]["frames"]
+    growth_mb = rss[1]["max_rss_mb"] - rss[0]["max_rss_mb"]
+    assert growth_mb < 0.25 * extra_frames, f"peak RSS grew {growth_mb:.0f} MB for {extra_frames} more frames: {rss}"
+
