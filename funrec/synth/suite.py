@@ -1,0 +1,157 @@
+"""Named suites of synthetic sequences: the fixed benchmark, a quick smoke suite and the
+tiny unit-test sequence; generation that skips finished sequences."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+from funrec.errors import FunrecError
+from funrec.synth.sequence import generate_sequence, is_complete
+from funrec.synth.spec import Interaction, PartRequest, SequenceSpec
+
+LOGGER = logging.getLogger(__name__)
+
+_OPEN = (Interaction(0, (0.9,)),)
+
+
+def _single(
+    name: str,
+    seed: int,
+    scene: str,
+    part: PartRequest,
+    frames: int,
+    hand_masks: bool,
+    targets: tuple[float, ...] = (0.9,),
+) -> SequenceSpec:
+    return SequenceSpec(name, seed, scene, (part,), (Interaction(0, targets),), frames, hand_masks=hand_masks)
+
+
+def bench_suite() -> tuple[SequenceSpec, ...]:
+    """The fixed benchmark: 12 single revolute, 8 single prismatic, 3 multi-interaction and
+    2 camera-only sequences at 640x480 and 15 FPS, 90-250 frames each; about half write hand masks."""
+    return (
+        _single("rev_cabinet_left_00", 1001, "kitchen", PartRequest("door", "left"), 130, True),
+        _single("rev_cabinet_right_00", 1002, "kitchen", PartRequest("door", "right"), 140, False),
+        _single("rev_cabinet_left_01", 1003, "kitchen", PartRequest("door", "left"), 120, True, (0.6,)),
+        _single("rev_double_door_00", 1004, "kitchen", PartRequest("double_door", "left"), 150, False),
+        _single("rev_double_door_01", 1005, "kitchen", PartRequest("double_door", "right"), 140, True),
+        _single("rev_wall_cabinet_00", 1006, "kitchen", PartRequest("wall_door", "right"), 140, True),
+        _single("rev_wall_cabinet_01", 1007, "kitchen", PartRequest("wall_double_door", "left"), 150, False),
+        _single("rev_fridge_00", 1008, "kitchen", PartRequest("fridge_door", "left"), 160, True),
+        _single("rev_fridge_01", 1009, "kitchen", PartRequest("fridge_door", "right"), 180, False, (0.85, 0.45)),
+        _single("rev_microwave_00", 1010, "kitchen", PartRequest("microwave_door"), 130, True),
+        _single("rev_oven_00", 1011, "kitchen", PartRequest("oven_door"), 150, False),
+        _single("rev_dishwasher_00", 1012, "kitchen", PartRequest("dishwasher_door"), 150, True),
+        _single("pri_drawer_00", 2001, "kitchen", PartRequest("drawer", level="top"), 120, True),
+        _single("pri_drawer_01", 2002, "kitchen", PartRequest("drawer", level="middle"), 130, False),
+        _single("pri_drawer_02", 2003, "kitchen", PartRequest("drawer", level="bottom"), 140, True),
+        _single("pri_drawer_03", 2004, "bedroom", PartRequest("drawer", level="top"), 120, False),
+        _single("pri_drawer_04", 2005, "bedroom", PartRequest("drawer", level="bottom"), 160, True, (0.9, 0.5)),
+        _single("pri_drawer_05", 2006, "kitchen", PartRequest("drawer"), 110, False, (0.7,)),
+        _single("pri_wardrobe_00", 2007, "bedroom", PartRequest("sliding_door", "left"), 150, True),
+        _single("pri_wardrobe_01", 2008, "bedroom", PartRequest("sliding_door", "right"), 150, False),
+        SequenceSpec(
+            "multi_kitchen_00",
+            3001,
+            "kitchen",
+            (PartRequest("door"), PartRequest("drawer", level="top")),
+            (Interaction(0, (0.9,)), Interaction(1, (0.8,))),
+            220,
+            hand_masks=True,
+        ),
+        SequenceSpec(
+            "multi_kitchen_01",
+            3002,
+            "kitchen",
+            (PartRequest("wall_door"), PartRequest("oven_door"), PartRequest("drawer")),
+            (Interaction(0, (0.85,)), Interaction(1, (0.9,)), Interaction(2, (0.75,))),
+            250,
+            hand_masks=False,
+        ),
+        SequenceSpec(
+            "multi_same_00",
+            3003,
+            "kitchen",
+            (PartRequest("door"),),
+            (Interaction(0, (0.7, 0.15)), Interaction(0, (0.95,))),
+            230,
+            hand_masks=True,
+        ),
+        SequenceSpec("static_walk_00", 4001, "kitchen", (), (), 90, hand_masks=False),
+        SequenceSpec("static_walk_01", 4002, "bedroom", (), (), 100, hand_masks=True),
+    )
+
+
+def smoke_suite() -> tuple[SequenceSpec, ...]:
+    """Three short 320x240 sequences (revolute, prismatic, camera-only) for quick end-to-end checks."""
+    return (
+        SequenceSpec(
+            "smoke_rev_00", 5001, "kitchen", (PartRequest("door", "left"),), _OPEN, 75, 320, 240, hand_masks=True
+        ),
+        SequenceSpec(
+            "smoke_pri_00", 5002, "kitchen", (PartRequest("drawer", level="top"),), _OPEN, 75, 320, 240, hand_masks=True
+        ),
+        SequenceSpec("smoke_static_00", 5003, "kitchen", (), (), 45, 320, 240, hand_masks=False),
+    )
+
+
+def tiny_spec(seed: int = 0) -> SequenceSpec:
+    """A 24-frame 80x60 sequence of one cabinet door being opened (hand masks on), for unit tests."""
+    return SequenceSpec(
+        f"tiny_{seed:02d}", seed, "tiny", (PartRequest("door"),), (Interaction(0, (0.7,)),), 24, 80, 60, hand_masks=True
+    )
+
+
+SUITES: dict[str, Callable[[], tuple[SequenceSpec, ...]]] = {"bench": bench_suite, "smoke": smoke_suite}
+"""Suite names accepted by :func:`generate_suite`."""
+
+
+def generate_suite(
+    out_dir: Path,
+    suite: str = "bench",
+    only: Sequence[str] | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> list[Path]:
+    """Generate a named suite into ``out_dir``, skipping sequences that are already complete.
+
+    Args:
+        out_dir: parent folder of the sequences.
+        suite: "bench" or "smoke".
+        only: names of the suite's sequences to generate (default: all).
+        progress: called as progress(frames_done, frames_total) over the frames still to render.
+
+    Returns:
+        The folders of the selected sequences, in suite order.
+
+    Raises:
+        FunrecError: unknown suite or sequence names.
+    """
+    if suite not in SUITES:
+        raise FunrecError(f"unknown suite {suite!r}; available: {sorted(SUITES)}")
+    specs = SUITES[suite]()
+    if only is not None:
+        known = {s.name for s in specs}
+        unknown = sorted(set(only) - known)
+        if unknown:
+            raise FunrecError(f"suite {suite!r} has no sequences {unknown}; it has {sorted(known)}")
+        specs = tuple(s for s in specs if s.name in set(only))
+    out_dir = Path(out_dir)
+    todo = [s for s in specs if not is_complete(out_dir / s.name)]
+    total = sum(s.num_frames for s in todo)
+    done = 0
+    for spec in todo:
+        LOGGER.info("generating %s (%d frames)", spec.name, spec.num_frames)
+        offset = done
+
+        def report(frames: int, _total: int, offset: int = offset) -> None:
+            if progress is not None:
+                progress(offset + frames, total)
+
+        generate_sequence(spec, out_dir, report)
+        done += spec.num_frames
+    return [out_dir / s.name for s in specs]
+
+
+__all__ = ["SUITES", "bench_suite", "generate_suite", "smoke_suite", "tiny_spec"]
