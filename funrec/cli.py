@@ -8,63 +8,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import logging
 import sys
 import time
 from collections.abc import Callable
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from funrec.errors import FunrecError
-
-log = logging.getLogger("funrec")
-
-
-@contextmanager
-def progress_bar(description: str, unit: str = "frame"):
-    """Yield a ``progress(done, total)`` callback that draws a tqdm bar on stderr."""
-    from tqdm import tqdm
-
-    bar: Any = None
-
-    def update(done: int, total: int) -> None:
-        nonlocal bar
-        if bar is None:
-            bar = tqdm(total=total, desc=description, unit=unit, leave=True, dynamic_ncols=True, file=sys.stderr)
-        bar.total = total
-        bar.n = done
-        bar.refresh()
-
-    try:
-        yield update
-    finally:
-        if bar is not None:
-            bar.close()
-
-
-@contextmanager
-def stage_bars():
-    """Yield a ``progress(stage, done, total)`` callback drawing one tqdm bar per stage."""
-    from tqdm import tqdm
-
-    bars: dict[str, Any] = {}
-
-    def update(stage: str, done: int, total: int) -> None:
-        bar = bars.get(stage)
-        if bar is None:
-            for other in bars.values():
-                other.close()
-            bar = bars[stage] = tqdm(total=total, desc=f"{stage:>14}", unit="frame", dynamic_ncols=True, file=sys.stderr)
-        bar.total = total
-        bar.n = done
-        bar.refresh()
-
-    try:
-        yield update
-    finally:
-        for bar in bars.values():
-            bar.close()
+from funrec.cli_runner import progress_bar, run_command, stage_bars
 
 
 def _print_summary(summary: Any) -> None:
@@ -296,22 +246,7 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser(argv)
-    args = parser.parse_args(argv)
-    logging.basicConfig(
-        level=logging.DEBUG if args.verbose else logging.WARNING,
-        format="%(levelname)s %(name)s: %(message)s",
-    )
-    try:
-        return int(args.handler(args))
-    except FunrecError as exc:
-        if args.verbose:
-            raise
-        print(f"funrec {args.command}: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
+    return run_command(build_parser(argv), argv)
 
 
 if __name__ == "__main__":

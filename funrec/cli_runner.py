@@ -1,0 +1,76 @@
+"""What every FunREC command line shares: running a parsed command with the project's exit
+codes, and progress bars (which belong to the CLI layer, never to the library)."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from typing import Any
+
+from funrec.errors import FunrecError
+
+EXIT_OK = 0
+EXIT_BUG = 1
+"""An unexpected exception: a bug, reported with its traceback."""
+EXIT_BAD_INPUT = 2
+"""A FunrecError: bad input or an impossible request, one line on stderr."""
+
+
+def run_command(parser: argparse.ArgumentParser, argv: list[str] | None) -> int:
+    """Parse ``argv``, set up logging (``-v``) and run ``args.handler(args)``.
+
+    Exit codes: 0 success, 2 on :class:`FunrecError` (one line on stderr; the traceback with
+    ``--verbose``), 1 on any other exception (the traceback), 130 on Ctrl-C.
+    """
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.WARNING,
+        format="%(levelname)s %(name)s: %(message)s",
+    )
+    try:
+        return int(args.handler(args))
+    except FunrecError as exc:
+        if args.verbose:
+            raise
+        print(f"{parser.prog} {args.command}: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+@contextmanager
+def stage_bars(unit: str = "frame") -> Iterator[Callable[[str, int, int], None]]:
+    """Yield ``progress(stage, done, total)`` that draws one tqdm bar per stage on stderr."""
+    from tqdm import tqdm
+
+    bars: dict[str, Any] = {}
+
+    def update(stage: str, done: int, total: int) -> None:
+        bar = bars.get(stage)
+        if bar is None:
+            for other in bars.values():
+                other.close()
+            bar = bars[stage] = tqdm(total=total, desc=f"{stage:>14}", unit=unit, dynamic_ncols=True, file=sys.stderr)
+        bar.total = total
+        bar.n = done
+        bar.refresh()
+
+    try:
+        yield update
+    finally:
+        for bar in bars.values():
+            bar.close()
+
+
+@contextmanager
+def progress_bar(description: str, unit: str = "frame") -> Iterator[Callable[[int, int], None]]:
+    """Yield ``progress(done, total)`` that draws a single tqdm bar on stderr."""
+    with stage_bars(unit) as update:
+        yield lambda done, total: update(description, done, total)
+
+
+__all__ = ["EXIT_BAD_INPUT", "EXIT_BUG", "EXIT_OK", "progress_bar", "run_command", "stage_bars"]
