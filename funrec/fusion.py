@@ -206,12 +206,19 @@ class _Volume:
     def integrate(self, depth_m: FloatArray, rgb: npt.NDArray[np.uint8], K: FloatArray, T_camera_volume: FloatArray) -> None:
         """Fuse one frame: ``depth_m`` (H, W) metres (0 = skip), ``rgb`` (H, W, 3), and the
         transform from the volume's frame (world or canonical part) into the camera."""
-        if not np.any(depth_m > 0):
-            return
+        if not np.any((depth_m > 0) & (depth_m < self.max_depth_m)):
+            return  # Open3D aborts when no reading falls inside the volume's depth range
         depth = o3d.t.geometry.Image(o3c.Tensor(depth_m.astype(np.float32)))
         colour = o3d.t.geometry.Image(o3c.Tensor(rgb.astype(np.float32) / 255.0))
         K_t, T_t = o3c.Tensor(K), o3c.Tensor(T_camera_volume)
-        blocks = self.grid.compute_unique_block_coordinates(depth, K_t, T_t, 1.0, self.max_depth_m, self.truncation_voxels)
+        try:
+            blocks = self.grid.compute_unique_block_coordinates(depth, K_t, T_t, 1.0, self.max_depth_m, self.truncation_voxels)
+        except RuntimeError as exc:
+            # Open3D raises instead of returning nothing when a frame's few valid pixels (a
+            # sliver of mask) touch no voxel block; such a frame has nothing to fuse.
+            if "No block is touched" not in str(exc):
+                raise
+            return
         self.grid.integrate(blocks, depth, colour, K_t, K_t, T_t, 1.0, self.max_depth_m, self.truncation_voxels)
 
     def extract(self, name: str, config: FusionConfig) -> trimesh.Trimesh:

@@ -19,6 +19,8 @@ from funrec.articulation import ArticulationConfig, InteractionEvidence, estimat
 from funrec.capture import Capture, load_capture
 from funrec.export.twin import TwinWriter
 from funrec.fusion import FusionConfig, fuse_tsdf
+from funrec.geometry.transforms import transform_points
+from funrec.gravity import GravityConfig, estimate_gravity
 from funrec.part_motion import PartMotion, PartMotionConfig, refine_part_motion
 from funrec.point_tracks import PointTrackConfig, track_points
 from funrec.segmentation import SegmentationConfig, segment_parts
@@ -47,6 +49,11 @@ class ReconstructConfig:
     """Part masks (stage 4)."""
     fusion: FusionConfig = field(default_factory=FusionConfig)
     """TSDF fusion (stage 6)."""
+    gravity: GravityConfig = field(default_factory=GravityConfig)
+    """Gravity alignment of the twin's world frame."""
+    align_gravity: bool = True
+    """Express the twin in a gravity-aligned frame (z up, origin on the floor below camera 0);
+    off: the world is camera 0's frame."""
     use_hand_masks: bool = True
     """Use the capture's hand masks when it has them (off: behave as if it had none)."""
     use_object_masks: bool = True
@@ -170,16 +177,21 @@ def reconstruct(
             config.fusion,
             progress=stage_progress("fusion"),
         )
-        meshes.static.export(writer.path("meshes/static.ply"))
+        T_twin_world = np.eye(4)
+        if config.align_gravity:
+            alignment = timed("gravity", estimate_gravity, meshes.static.vertices, trajectory.T_world_camera, config.gravity)
+            T_twin_world = alignment.T_aligned_world
+        meshes.static.copy().apply_transform(T_twin_world).export(writer.path("meshes/static.ply"))
         parts = []
         for k, (motion, mesh) in enumerate(zip(motions, meshes.parts)):
-            mesh.export(writer.path(f"meshes/part_{k}.ply"))
+            mesh.copy().apply_transform(T_twin_world).export(writer.path(f"meshes/part_{k}.ply"))
+            pivot_twin = None if motion.pivot_world is None else transform_points(T_twin_world, motion.pivot_world[None])[0]
             parts.append(
                 make_part(
                     f"part_{k}",
                     motion.joint_type,
-                    motion.axis_world,
-                    motion.pivot_world,
+                    T_twin_world[:3, :3] @ motion.axis_world,
+                    pivot_twin,
                     motion.frames,
                     motion.states,
                     motion.state_range,
@@ -187,7 +199,7 @@ def reconstruct(
                     masks=f"masks/part_{k}",
                 )
             )
-        writer.write_camera_poses(trajectory.T_world_camera)
+        writer.write_camera_poses(T_twin_world @ trajectory.T_world_camera)
         writer.write_articulation(TwinArticulation(frame_count=len(capture), parts=tuple(parts)))
     summaries = tuple(
         PartSummary(p.name, p.joint_type, p.state_range, (int(p.frames[0]), int(p.frames[-1]))) for p in parts

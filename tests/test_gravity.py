@@ -1,0 +1,61 @@
+"""Gravity alignment recovers z up from a floor, and from camera axes without one."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from funrec.geometry import make_transform, rotation_about_axis, transform_points
+from funrec.gravity import estimate_gravity
+
+# The floor's normal is fitted to thousands of points with 3 mm noise: well under 1 degree.
+UP_TOLERANCE_DEG = 1.0
+
+
+def _room(rng: np.random.Generator) -> np.ndarray:
+    """Floor at z=0, a wall at y=2, a countertop at z=0.9 and a cabinet front at y=1.4 (scene frame)."""
+    floor = np.c_[rng.uniform(-2, 2, (6000, 2)), np.zeros(6000)]
+    wall = np.c_[rng.uniform(-2, 2, 3000), np.full(3000, 2.0), rng.uniform(0, 2.5, 3000)]
+    counter = np.c_[rng.uniform(-1, 1, 2000), rng.uniform(1.4, 2.0, 2000), np.full(2000, 0.9)]
+    front = np.c_[rng.uniform(-1, 1, 2000), np.full(2000, 1.4), rng.uniform(0.1, 0.9, 2000)]
+    return np.vstack([floor, wall, counter, front]) + rng.normal(0, 0.003, (13000, 3))
+
+
+def _head_cameras(rng: np.random.Generator, pitch_deg: float) -> np.ndarray:
+    """Head-mounted cameras at 1.6 m looking at +y, pitched down, a few degrees of roll noise (scene frame)."""
+    R_scene_level = np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]])  # OpenCV camera looking along +y
+    poses = []
+    for yaw in np.linspace(-0.6, 0.6, 20):
+        R = rotation_about_axis([0, 0, 1], yaw) @ R_scene_level @ rotation_about_axis([1, 0, 0], -np.radians(pitch_deg))
+        R = R @ rotation_about_axis([0, 0, 1], np.radians(rng.normal(0, 2.0)))
+        poses.append(make_transform(R, [rng.uniform(-0.5, 0.5), rng.uniform(-1, 0), 1.6]))
+    return np.stack(poses)
+
+
+@pytest.mark.parametrize("pitch_deg", [10.0, 35.0])
+def test_floor_gives_up_and_height(pitch_deg: float) -> None:
+    rng = np.random.default_rng(1)
+    T_scene_camera = _head_cameras(rng, pitch_deg)
+    # The pipeline's world is camera 0's frame.
+    T_world_scene = np.linalg.inv(T_scene_camera[0])
+    points_world = transform_points(T_world_scene, _room(rng))
+    alignment = estimate_gravity(points_world, T_world_scene @ T_scene_camera)
+    assert alignment.source == "floor_plane"
+    T_aligned_scene = alignment.T_aligned_world @ T_world_scene
+    up_in_aligned = T_aligned_scene[:3, :3] @ [0.0, 0.0, 1.0]
+    angle = np.degrees(np.arccos(np.clip(up_in_aligned[2], -1, 1)))
+    assert angle < UP_TOLERANCE_DEG
+    # Camera 0 stands 1.6 m above the floor, the origin is on the floor below it.
+    p_camera0 = (alignment.T_aligned_world @ T_world_scene @ T_scene_camera[0])[:3, 3]
+    np.testing.assert_allclose(p_camera0, [0.0, 0.0, 1.6], atol=0.01)
+
+
+def test_without_floor_uses_camera_axes() -> None:
+    rng = np.random.default_rng(2)
+    T_scene_camera = _head_cameras(rng, 20.0)
+    wall = np.c_[rng.uniform(-2, 2, 3000), np.full(3000, 2.0), rng.uniform(0.5, 2.5, 3000)]
+    alignment = estimate_gravity(wall, T_scene_camera)
+    assert alignment.source == "camera_axes"
+    up = alignment.T_aligned_world[:3, :3] @ [0.0, 0.0, 1.0]
+    # Roll noise of 2 degrees per camera averages down over 20 cameras spread in yaw.
+    assert np.degrees(np.arccos(np.clip(up[2], -1, 1))) < 3.0
