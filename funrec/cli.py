@@ -123,6 +123,39 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_convert(args: argparse.Namespace) -> int:
+    from funrec.config import config_from_args
+    from funrec.convert import ConvertConfig, convert
+
+    report = convert(args.source, args.output, config_from_args(ConvertConfig, args))
+    print(report.summary())
+    for dropped in report.dropped[:5]:
+        print(f"  dropped source frame {dropped.source_index}: {dropped.reason}")
+    if len(report.dropped) > 5:
+        print(f"  ... and {len(report.dropped) - 5} more, listed in {report.capture_dir / 'conversion.json'}")
+    return 0
+
+
+def _add_convert(sub: Any, selected: bool) -> None:
+    p = sub.add_parser(
+        "convert",
+        usage="funrec convert SOURCE -o CAPTURE [--format NAME] [--rgb-topic T] [--depth-topic T] [options]",
+        help="convert an RGB-D recording into a capture folder",
+        description="Convert a TUM RGB-D folder, Azure Kinect .mkv, ROS 1/2 bag, RealSense .bag/.db3 or Record3D .r3d "
+        "into a capture folder (FORMATS.md section 1). It is written to a temporary folder and moved into place when "
+        "complete; its conversion.json lists dropped frames, timestamp gaps and the decisions taken. Plain videos "
+        "are refused: FunREC needs depth.",
+    )
+    p.add_argument("source", type=Path, help="recording file or folder")
+    p.add_argument("-o", "--output", type=Path, required=True, help="capture folder to write")
+    if selected:  # converter settings load only for the command being run
+        from funrec.config import add_config_arguments
+        from funrec.convert import ConvertConfig
+
+        add_config_arguments(p, ConvertConfig)
+    p.set_defaults(handler=_cmd_convert)
+
+
 def _add_synth(sub: Any, selected: bool) -> None:
     p = sub.add_parser(
         "synth",
@@ -223,6 +256,7 @@ def _add_demo(sub: Any, selected: bool) -> None:
 _COMMANDS: dict[str, Callable[[Any, bool], None]] = {
     "reconstruct": _add_reconstruct,
     "demo": _add_demo,
+    "convert": _add_convert,
     "synth": _add_synth,
     "check": _add_check,
     "eval": _add_eval,
