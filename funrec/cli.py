@@ -136,6 +136,64 @@ def _cmd_convert(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_export(args: argparse.Namespace) -> int:
+    from funrec.config import config_from_args, load_config_file
+    from funrec.export.simulation import ExportConfig, export_simulation
+
+    base = load_config_file(ExportConfig, args.config) if args.config else None
+    exports = export_simulation(args.twin, config_from_args(ExportConfig, args, base))
+    written = ", ".join(str(p) for p in (exports.urdf, exports.mjcf, exports.usd) if p is not None)
+    print(f"wrote {written} ({exports.total_seconds:.1f} s)")
+    return 0
+
+
+def _add_export(sub: Any, selected: bool) -> None:
+    p = sub.add_parser(
+        "export",
+        usage="funrec export TWIN [--config FILE] [options]",
+        help="(re)write a twin's simulator exports: twin.urdf, twin.xml (MuJoCo), twin.usda",
+        description="Write twin.urdf (through yourdfpy), twin.xml (MuJoCo MJCF) and twin.usda (UsdPhysics "
+        "articulation) into a twin folder: a fixed base with the static mesh, one link per part with its revolute or "
+        "prismatic joint and observed limits, convex collision pieces, mass and inertia from a density. "
+        "funrec reconstruct already writes them; use this to re-export with other settings.",
+    )
+    p.add_argument("twin", type=Path, help="twin folder (holds articulation.json and meshes/)")
+    p.add_argument("--config", type=Path, help="JSON or YAML file of ExportConfig fields (unknown keys are errors)")
+    if selected:
+        from funrec.config import add_config_arguments
+        from funrec.export.simulation import ExportConfig
+
+        add_config_arguments(p, ExportConfig)
+    p.set_defaults(handler=_cmd_export)
+
+
+def _cmd_render(args: argparse.Namespace) -> int:
+    from funrec.config import config_from_args
+    from funrec.render import RenderConfig, render_twin
+
+    out = args.output if args.output is not None else args.twin / "render"
+    paths = render_twin(args.twin, out, config_from_args(RenderConfig, args))
+    print(f"{len(paths) - 1} images and {paths[-1]} written to {out}")
+    return 0
+
+
+def _add_render(sub: Any, selected: bool) -> None:
+    p = sub.add_parser(
+        "render",
+        help="write PNG pictures and a GIF of a twin at several joint states",
+        description="Render the twin's MuJoCo export offscreen (EGL or OSMesa, no display needed) from the side the "
+        "person looked from: an overview and each part at evenly spaced states of its observed range, plus a GIF.",
+    )
+    p.add_argument("twin", type=Path, help="twin folder (holds twin.xml)")
+    p.add_argument("-o", "--output", type=Path, help="image folder (default: TWIN/render)")
+    if selected:
+        from funrec.config import add_config_arguments
+        from funrec.render import RenderConfig
+
+        add_config_arguments(p, RenderConfig)
+    p.set_defaults(handler=_cmd_render)
+
+
 def _add_convert(sub: Any, selected: bool) -> None:
     p = sub.add_parser(
         "convert",
@@ -256,6 +314,8 @@ def _add_demo(sub: Any, selected: bool) -> None:
 _COMMANDS: dict[str, Callable[[Any, bool], None]] = {
     "reconstruct": _add_reconstruct,
     "demo": _add_demo,
+    "export": _add_export,
+    "render": _add_render,
     "convert": _add_convert,
     "synth": _add_synth,
     "check": _add_check,

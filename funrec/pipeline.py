@@ -17,6 +17,7 @@ import numpy as np
 
 from funrec.articulation import ArticulationConfig, InteractionEvidence, estimate_articulation
 from funrec.capture import Capture, load_capture
+from funrec.export.simulation import ExportConfig, export_simulation
 from funrec.export.twin import TwinWriter
 from funrec.fusion import FusionConfig, fuse_tsdf
 from funrec.geometry.transforms import transform_points
@@ -49,6 +50,8 @@ class ReconstructConfig:
     """Part masks (stage 4)."""
     fusion: FusionConfig = field(default_factory=FusionConfig)
     """TSDF fusion (stage 6)."""
+    export: ExportConfig = field(default_factory=ExportConfig)
+    """Simulation exports (twin.urdf, twin.xml, twin.usda)."""
     gravity: GravityConfig = field(default_factory=GravityConfig)
     """Gravity alignment of the twin's world frame."""
     align_gravity: bool = True
@@ -201,6 +204,7 @@ def reconstruct(
             )
         writer.write_camera_poses(T_twin_world @ trajectory.T_world_camera)
         writer.write_articulation(TwinArticulation(frame_count=len(capture), parts=tuple(parts)))
+        timed("export", export_simulation, writer.root, config.export)
     summaries = tuple(
         PartSummary(p.name, p.joint_type, p.state_range, (int(p.frames[0]), int(p.frames[-1]))) for p in parts
     )

@@ -8,9 +8,6 @@ from __future__ import annotations
 
 import logging
 import math
-import os
-import subprocess
-import sys
 from dataclasses import dataclass
 from types import TracebackType
 from typing import TYPE_CHECKING
@@ -19,6 +16,7 @@ import numpy as np
 
 from funrec.errors import FunrecError
 from funrec.geometry.camera import PinholeIntrinsics
+from funrec.offscreen import ensure_gl_backend, offscreen_context
 from funrec.typed import FloatArray, UInt8Array
 
 if TYPE_CHECKING:
@@ -30,66 +28,6 @@ NEAR_M = 0.02
 """Near clipping plane, metres (nothing the camera sees is closer)."""
 FAR_M = 30.0
 """Far clipping plane, metres; pixels at the far plane read as depth 0 (no surface)."""
-_GL_BACKENDS = ("egl", "osmesa")
-_PROBE = "import mujoco; m = mujoco.MjModel.from_xml_string('<mujoco/>'); mujoco.Renderer(m, 8, 8).close()"
-
-
-def ensure_gl_backend() -> str:
-    """Pick MuJoCo's offscreen OpenGL backend before MuJoCo is imported.
-
-    Keeps ``MUJOCO_GL`` when the user set it. Otherwise tries EGL, then OSMesa, each in a
-    short subprocess, and sets ``MUJOCO_GL`` (and ``PYOPENGL_PLATFORM``) to the first that
-    renders. MuJoCo reads the variable once, at import, so this must run first.
-
-    Returns:
-        The backend in use ("egl", "osmesa", or the user's value).
-
-    Raises:
-        FunrecError: no backend can render.
-    """
-    chosen = os.environ.get("MUJOCO_GL")
-    if chosen or "mujoco" in sys.modules:
-        return chosen or "default"
-    for backend in _GL_BACKENDS:
-        env = {**os.environ, "MUJOCO_GL": backend, "PYOPENGL_PLATFORM": backend}
-        probe = subprocess.run([sys.executable, "-c", _PROBE], env=env, capture_output=True, timeout=120, check=False)
-        if probe.returncode == 0:
-            os.environ["MUJOCO_GL"] = backend
-            os.environ.setdefault("PYOPENGL_PLATFORM", backend)
-            LOGGER.info("MuJoCo offscreen rendering with %s", backend)
-            return backend
-        LOGGER.info("MuJoCo %s rendering unavailable: %s", backend, probe.stderr.decode(errors="replace")[-300:])
-    raise FunrecError("MuJoCo cannot render offscreen with EGL or OSMesa; install libegl1 or libosmesa6 (see Makefile)")
-
-
-def _offscreen_context(width: int, height: int) -> object:
-    """A current offscreen GL context: MuJoCo's own when it was imported with EGL or OSMesa,
-    else (MuJoCo imported first by other code, with a windowing backend) one made directly."""
-    import importlib
-
-    import mujoco
-
-    candidates = []
-    if any(name in getattr(mujoco, "GLContext", type).__module__ for name in _GL_BACKENDS):
-        candidates.append(mujoco.GLContext)
-    errors = []
-    for backend in _GL_BACKENDS:
-        try:
-            candidates.append(importlib.import_module(f"mujoco.{backend}").GLContext)
-        except Exception as exc:  # the GL bindings raise assorted types
-            errors.append(f"{backend}: {exc}")
-    for context_class in candidates:
-        try:
-            context = context_class(width, height)
-            context.make_current()
-            return context
-        except Exception as exc:  # context creation fails with assorted types too
-            errors.append(f"{context_class.__module__}: {exc}")
-    raise FunrecError(
-        f"cannot create an offscreen OpenGL context (MUJOCO_GL={os.environ.get('MUJOCO_GL')}): {'; '.join(errors)}"
-    )
-
-
 def fovy_for_focal(height: int, focal_px: float) -> float:
     """Vertical field of view (degrees) of a camera with focal length ``focal_px`` pixels."""
     return math.degrees(2.0 * math.atan(height / 2.0 / focal_px))
@@ -143,7 +81,7 @@ class OffscreenRenderer:
         model.vis.map.znear = NEAR_M / model.stat.extent
         model.vis.map.zfar = FAR_M / model.stat.extent
         self._near, self._far = NEAR_M, FAR_M
-        self._gl = _offscreen_context(width, height)
+        self._gl = offscreen_context(width, height)
         self._context = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_150)
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._context)
         self._context.readDepthMap = mujoco.mjtDepthMap.mjDEPTH_ZERONEAR

@@ -1,0 +1,128 @@
+"""Pictures of a twin for people without a 3D viewer: its MuJoCo export rendered offscreen at
+several joint states, as PNG images and an animated GIF."""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from funrec.camera_poses import read_camera_poses
+from funrec.errors import FunrecError
+from funrec.offscreen import ensure_gl_backend
+from funrec.twin_format import read_articulation
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class RenderConfig:
+    """Settings of :func:`render_twin`."""
+
+    width: int = 640
+    """Image width, pixels."""
+    height: int = 480
+    """Image height, pixels."""
+    states: int = 5
+    """Joint states per part, evenly spread over its observed range."""
+    zoom_out: float = 1.6
+    """The view is the person's at the middle of the first interaction, moved back along the
+    line of sight by this factor so the part's surroundings are in the picture."""
+    part_rgba: tuple[float, float, float, float] = (1.0, 0.55, 0.1, 1.0)
+    """Colour of the articulated parts (the static scene keeps its export colour)."""
+    gif_frame_s: float = 0.4
+    """Time each image is shown in the GIF, seconds."""
+
+
+def _view(T_world_camera: np.ndarray, target: np.ndarray) -> tuple[float, float, float]:
+    """Distance (m), azimuth and elevation (degrees) of a MuJoCo free camera looking at
+    ``target`` from where the camera of one frame stood (the twin frame is z up)."""
+    forward = target - T_world_camera[:3, 3]
+    distance = float(np.linalg.norm(forward))
+    forward = forward / max(distance, 1e-9)
+    azimuth = np.degrees(np.arctan2(forward[1], forward[0]))
+    elevation = np.degrees(np.arcsin(np.clip(forward[2], -1.0, 1.0)))
+    return distance, float(azimuth), float(elevation)
+
+
+def render_twin(twin_dir: str | Path, out_dir: str | Path, config: RenderConfig = RenderConfig()) -> list[Path]:  # noqa: B008
+    """Render ``twin.xml`` of a twin folder at several joint states of each part.
+
+    One PNG per (part, state) named ``<part>_state<k>.png``, an ``overview.png`` at the canonical
+    state, and ``twin.gif`` cycling through all of them.
+
+    Args:
+        twin_dir: twin folder with twin.xml, articulation.json and camera_poses.txt.
+        out_dir: folder for the images (created).
+        config: settings.
+
+    Returns:
+        Paths written, the GIF last.
+
+    Raises:
+        FunrecError: twin.xml is missing or does not load, or offscreen rendering is unavailable.
+    """
+    twin_dir, out_dir = Path(twin_dir), Path(out_dir)
+    xml = twin_dir / "twin.xml"
+    if not xml.is_file():
+        raise FunrecError(f"{xml}: missing (run funrec export {twin_dir} first)")
+    articulation = read_articulation(twin_dir)
+    T_world_camera = read_camera_poses(twin_dir / "camera_poses.txt").T_world_camera
+    ensure_gl_backend()
+    import mujoco
+    from PIL import Image
+
+    try:
+        model = mujoco.MjModel.from_xml_path(str(xml))
+    except ValueError as exc:
+        raise FunrecError(f"{xml}: MuJoCo cannot load it ({exc})") from None
+    model.vis.global_.offwidth = max(model.vis.global_.offwidth, config.width)
+    model.vis.global_.offheight = max(model.vis.global_.offheight, config.height)
+    data = mujoco.MjData(model)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+    camera = mujoco.MjvCamera()
+    camera.type = mujoco.mjtCamera.mjCAMERA_FREE
+    with mujoco.Renderer(model, config.height, config.width) as renderer:
+
+        def shoot(path: Path) -> None:
+            mujoco.mj_forward(model, data)
+            renderer.update_scene(data, camera)
+            Image.fromarray(renderer.render()).save(path)
+            written.append(path)
+
+        for part in articulation.parts:
+            body = model.jnt_bodyid[model.joint(part.name).id]
+            model.geom_rgba[model.geom_bodyid == body] = config.part_rgba
+        mujoco.mj_forward(model, data)
+        if articulation.parts:
+            first = articulation.parts[0]
+            body = model.jnt_bodyid[model.joint(first.name).id]
+            target = data.xipos[body].copy()
+            frame = int(first.frames[len(first.frames) // 2])
+        else:
+            target = T_world_camera[0, :3, 3] + T_world_camera[0, :3, 2] * 1.5
+            frame = 0
+        distance, camera.azimuth, camera.elevation = _view(T_world_camera[frame], target)
+        camera.lookat[:] = target
+        camera.distance = distance * config.zoom_out
+        shoot(out_dir / "overview.png")
+        for part in articulation.parts:
+            joint = model.joint(part.name)
+            lower, upper = model.jnt_range[joint.id]
+            for k, state in enumerate(np.linspace(lower, upper, config.states)):
+                data.qpos[:] = 0.0
+                data.qpos[model.jnt_qposadr[joint.id]] = state
+                shoot(out_dir / f"{part.name}_state{k}.png")
+            data.qpos[:] = 0.0
+    images = [Image.open(path) for path in written]
+    gif = out_dir / "twin.gif"
+    images[0].save(gif, save_all=True, append_images=images[1:], duration=int(config.gif_frame_s * 1000), loop=0)
+    written.append(gif)
+    log.info("rendered %d images of %s", len(written) - 1, twin_dir)
+    return written
+
+
+__all__ = ["RenderConfig", "render_twin"]

@@ -1,0 +1,386 @@
+"""twin.urdf read back by yourdfpy and pinocchio, and the shared pieces of the simulation exports
+(model frames, mass properties, convex decomposition, errors).
+
+The helpers at the top build a cabinet twin from exact boxes and state what any simulator must
+reproduce; test_export_mjcf.py and test_export_usd.py import them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from funrec.errors import ExportError
+from funrec.export.collision import CollisionConfig, convex_piece, decompose
+from funrec.export.sim_model import mass_properties, part_link_frame
+from funrec.export.simulation import ExportConfig, SimulationExports, export_simulation
+from funrec.geometry.joints import joint_transform
+from funrec.geometry.transforms import make_transform, transform_points
+from funrec.twin_format import ArticulatedPart, TwinArticulation, make_part, read_articulation, write_articulation
+
+POSITION_ATOL_M = 1e-3
+"""Required agreement of simulator part poses with articulation.json (1 mm)."""
+ANGLE_ATOL_RAD = np.radians(0.1)
+"""Required agreement of simulator part orientations (0.1 degree)."""
+DOOR_SIZE_M = (0.58, 0.02, 0.38)
+"""Door panel (width, thickness, height) in the cabinet frame."""
+T_WORLD_CABINET = make_transform(Rotation.from_rotvec([0.3, -0.5, 0.9]).as_matrix(), [2.5, -1.7, 0.8])
+"""Where the cabinet stands: a tilted, far-away placement, so no joint axis is axis-aligned and
+the door's pivot is metres from the origin."""
+FAST_EXPORT = ExportConfig(collision=CollisionConfig(part_method="hull", static_method="grid"))
+"""Export settings for tests: one hull per part keeps CoACD (seconds per mesh) out of the fast run."""
+
+
+def _box(size: tuple[float, float, float], centre: tuple[float, float, float]) -> trimesh.Trimesh:
+    return trimesh.creation.box(extents=size, transform=make_transform(np.eye(3), centre))
+
+
+def write_cabinet_twin(twin_dir: Path, with_parts: bool = True) -> TwinArticulation:
+    """A cabinet (0.6 x 0.4 x 0.8 m, front facing -y of the cabinet frame) with a left-hinged
+    door on top and a drawer below, placed by T_WORLD_CABINET; writes articulation.json and
+    world-frame meshes as FORMATS.md section 2 says."""
+    carcass = trimesh.util.concatenate(
+        [
+            _box((0.6, 0.02, 0.8), (0.0, 0.19, 0.4)),  # back
+            _box((0.02, 0.4, 0.8), (-0.29, 0.0, 0.4)),  # left
+            _box((0.02, 0.4, 0.8), (0.29, 0.0, 0.4)),  # right
+            _box((0.6, 0.4, 0.02), (0.0, 0.0, 0.01)),  # bottom
+            _box((0.6, 0.4, 0.02), (0.0, 0.0, 0.4)),  # shelf
+            _box((0.6, 0.4, 0.02), (0.0, 0.0, 0.79)),  # top
+        ]
+    )
+    door = _box(DOOR_SIZE_M, (0.0, -0.21, 0.6))
+    drawer = trimesh.util.concatenate(
+        [
+            _box((0.56, 0.02, 0.35), (0.0, -0.21, 0.2)),  # front
+            _box((0.54, 0.36, 0.01), (0.0, -0.02, 0.05)),  # floor
+            _box((0.01, 0.36, 0.2), (-0.265, -0.02, 0.14)),
+            _box((0.01, 0.36, 0.2), (0.265, -0.02, 0.14)),
+            _box((0.54, 0.01, 0.2), (0.0, 0.155, 0.14)),
+        ]
+    )
+    (twin_dir / "meshes").mkdir(parents=True, exist_ok=True)
+    for name, mesh in (("static", carcass), ("part_0", door), ("part_1", drawer)):
+        mesh.apply_transform(T_WORLD_CABINET)
+        mesh.export(twin_dir / "meshes" / f"{name}.ply")
+    R_world_cabinet = T_WORLD_CABINET[:3, :3]
+    hinge_cabinet = np.array([-0.29, -0.22, 0.6])
+    parts = (
+        make_part(
+            "part_0",
+            "revolute",
+            R_world_cabinet @ [0.0, 0.0, -1.0],
+            transform_points(T_WORLD_CABINET, [hinge_cabinet])[0],
+            [0, 1, 2, 3],
+            [0.0, 0.4, 0.9, 1.4],
+            state_range=(-0.05, 1.5),
+            mesh="meshes/part_0.ply",
+        ),
+        make_part(
+            "part_1",
+            "prismatic",
+            R_world_cabinet @ [0.0, -1.0, 0.0],
+            None,
+            [4, 5, 6],
+            [0.0, 0.1, 0.25],
+            state_range=(0.0, 0.3),
+            mesh="meshes/part_1.ply",
+        ),
+    )
+    articulation = TwinArticulation(frame_count=8, parts=parts if with_parts else ())
+    write_articulation(twin_dir / "articulation.json", articulation)
+    return articulation
+
+
+def sample_states(part: ArticulatedPart) -> np.ndarray:
+    """A few joint states across the observed range, ends included."""
+    lower, upper = min(part.state_range[0], 0.0), max(part.state_range[1], 0.0)
+    return np.linspace(lower, upper, 5)
+
+
+def expected_vertices(twin_dir: Path, part: ArticulatedPart, state: float, T_export_world: np.ndarray) -> np.ndarray:
+    """(N, 3) canonical mesh vertices moved by the FORMATS joint transform, in the export frame."""
+    assert part.mesh is not None
+    p_world = np.asarray(trimesh.load(twin_dir / part.mesh).vertices)
+    T_world_world = joint_transform(part.joint_type, part.axis_world, part.pivot_world, state)
+    return transform_points(T_export_world @ T_world_world, p_world)
+
+
+def assert_part_pose(
+    twin_dir: Path,
+    part: ArticulatedPart,
+    state: float,
+    T_export_link: np.ndarray,
+    T_export_link_canonical: np.ndarray,
+    p_link: np.ndarray,
+    T_export_world: np.ndarray | None = None,
+) -> None:
+    """Check a simulator's pose of a part link against articulation.json.
+
+    Args:
+        twin_dir: the twin folder.
+        part: the part, from articulation.json.
+        state: joint state the simulator was set to.
+        T_export_link: (4, 4) link pose the simulator computed at ``state``, export frame.
+        T_export_link_canonical: (4, 4) link pose the simulator computed at state 0.
+        p_link: (N, 3) the part's mesh vertices as the simulator holds them, link frame.
+        T_export_world: (4, 4) export transform used; None is the identity.
+    """
+    T_export_world = np.eye(4) if T_export_world is None else T_export_world
+    expected = expected_vertices(twin_dir, part, state, T_export_world)
+    got = transform_points(T_export_link, p_link)
+    # Vertex order may change through a mesh file: compare the point sets both ways.
+    distance = max(cKDTree(got).query(expected)[0].max(), cKDTree(expected).query(got)[0].max())
+    assert distance < POSITION_ATOL_M, f"{part.name} at {state}: vertices off by {distance * 1e3:.3f} mm"
+    T_world_world = joint_transform(part.joint_type, part.axis_world, part.pivot_world, state)
+    T_expected = T_export_world @ T_world_world @ np.linalg.inv(T_export_world)
+    T_motion = T_export_link @ np.linalg.inv(T_export_link_canonical)
+    angle = Rotation.from_matrix(T_motion[:3, :3] @ T_expected[:3, :3].T).magnitude()
+    assert angle < ANGLE_ATOL_RAD, f"{part.name} at {state}: rotation off by {np.degrees(angle):.4f} deg"
+    offset = np.linalg.norm(T_motion[:3, 3] - T_expected[:3, 3])
+    assert offset < POSITION_ATOL_M, f"{part.name} at {state}: translation off by {offset * 1e3:.3f} mm"
+
+
+def export(tmp_path: Path, config: ExportConfig = FAST_EXPORT, with_parts: bool = True) -> SimulationExports:
+    """Write the cabinet twin and export it."""
+    twin_dir = tmp_path / "twin"
+    write_cabinet_twin(twin_dir, with_parts=with_parts)
+    return export_simulation(twin_dir, config)
+
+
+@pytest.fixture(scope="module")
+def urdf_export(tmp_path_factory: pytest.TempPathFactory) -> SimulationExports:
+    return export(tmp_path_factory.mktemp("urdf"), dataclasses.replace(FAST_EXPORT, formats=("urdf",)))
+
+
+def _twin_dir(exports: SimulationExports) -> Path:
+    assert exports.urdf is not None
+    return exports.urdf.parent
+
+
+def test_urdf_round_trip_yourdfpy(urdf_export: SimulationExports) -> None:
+    import yourdfpy
+
+    twin_dir = _twin_dir(urdf_export)
+    urdf = yourdfpy.URDF.load(str(urdf_export.urdf), load_meshes=False)
+    articulation = read_articulation(twin_dir)
+    assert sorted(urdf.actuated_joint_names) == ["part_0", "part_1"]
+    for part in articulation.parts:
+        visual_file = urdf.link_map[part.name].visuals[0].geometry.mesh.filename
+        assert not Path(visual_file).is_absolute()
+        p_link = np.asarray(trimesh.load(twin_dir / visual_file).vertices)
+        urdf.update_cfg({part.name: 0.0})
+        T_static_part_canonical = urdf.get_transform(part.name, "static")
+        for state in sample_states(part):
+            urdf.update_cfg({part.name: state})
+            T_static_part = urdf.get_transform(part.name, "static")
+            assert_part_pose(twin_dir, part, state, T_static_part, T_static_part_canonical, p_link)
+        urdf.update_cfg({part.name: 0.0})
+
+
+def test_urdf_round_trip_pinocchio(urdf_export: SimulationExports) -> None:
+    import pinocchio as pin
+
+    twin_dir = _twin_dir(urdf_export)
+    model = pin.buildModelFromUrdf(str(urdf_export.urdf))
+    visuals = pin.buildGeomFromUrdf(model, str(urdf_export.urdf), pin.GeometryType.VISUAL, package_dirs=[str(twin_dir)])
+    collisions = pin.buildGeomFromUrdf(
+        model, str(urdf_export.urdf), pin.GeometryType.COLLISION, package_dirs=[str(twin_dir)]
+    )
+    assert collisions.ngeoms == sum(len(link.collision) for link in (urdf_export.model.base, *urdf_export.model.parts))
+    data = model.createData()
+    assert model.nq == 2
+    for part in read_articulation(twin_dir).parts:
+        joint_id = model.getJointId(part.name)
+        frame_id = model.getFrameId(part.name, pin.FrameType.BODY)
+        np.testing.assert_allclose(
+            [model.lowerPositionLimit[model.idx_qs[joint_id]], model.upperPositionLimit[model.idx_qs[joint_id]]],
+            [min(part.state_range[0], 0.0), max(part.state_range[1], 0.0)],
+            atol=1e-12,
+        )
+        (geometry,) = [g for g in visuals.geometryObjects if g.parentJoint == joint_id]
+        p_mesh = np.asarray(trimesh.load(geometry.meshPath).vertices)
+        poses = {}
+        for state in [0.0, *sample_states(part)]:
+            q = pin.neutral(model)
+            q[model.idx_qs[joint_id]] = state
+            pin.forwardKinematics(model, data, q)
+            pin.updateFramePlacements(model, data)
+            poses[state] = data.oMf[frame_id].homogeneous.copy()
+            T_part_geometry = geometry.placement.homogeneous
+            assert_part_pose(twin_dir, part, state, poses[state], poses[0.0], transform_points(T_part_geometry, p_mesh))
+
+
+def test_urdf_joints_limits_and_dynamics(urdf_export: SimulationExports) -> None:
+    import yourdfpy
+
+    urdf = yourdfpy.URDF.load(str(urdf_export.urdf), load_meshes=False)
+    door, drawer = urdf.joint_map["part_0"], urdf.joint_map["part_1"]
+    assert (door.type, drawer.type) == ("revolute", "prismatic")
+    np.testing.assert_allclose(door.axis, [0.0, 0.0, 1.0])
+    assert (door.limit.lower, door.limit.upper) == (-0.05, 1.5)
+    assert (drawer.limit.lower, drawer.limit.upper) == (0.0, 0.3)
+    assert (
+        door.limit.effort == FAST_EXPORT.revolute_effort_nm
+        and drawer.limit.velocity == FAST_EXPORT.prismatic_velocity_m_s
+    )
+    assert float(door.dynamics.damping) == FAST_EXPORT.revolute_damping  # yourdfpy keeps it a string
+    assert urdf.link_map["static"].inertial is None
+    assert len(urdf.link_map["static"].collisions) == len(urdf_export.model.base.collision) > 0
+
+
+def test_mass_and_inertia_follow_the_density(urdf_export: SimulationExports, tmp_path: Path) -> None:
+    door, drawer = urdf_export.model.parts
+    assert door.mass is not None and drawer.mass is not None
+    # The door is one watertight box: its mass properties are the solid box's, up to the float32
+    # vertices of the PLY file (relative error ~1e-7).
+    w, d, h = DOOR_SIZE_M
+    mass = FAST_EXPORT.density_kg_m3 * w * d * h
+    assert door.mass.source == "mesh"
+    np.testing.assert_allclose(door.mass.mass_kg, mass, rtol=1e-5)
+    moments, _ = door.mass.principal_axes()
+    box_moments = sorted(mass / 12.0 * np.array([d * d + h * h, w * w + h * h, w * w + d * d]))
+    np.testing.assert_allclose(moments, box_moments, rtol=1e-5)
+    for link in (door, drawer):
+        assert link.mass is not None
+        moments, _ = link.mass.principal_axes()
+        assert link.mass.mass_kg > 0.0 and np.all(moments > 0.0)
+        assert moments[0] + moments[1] >= moments[2] * (1.0 - 1e-9)  # triangle inequality
+        np.testing.assert_allclose(link.mass.mass_kg, FAST_EXPORT.density_kg_m3 * link.mass.volume_m3)
+    # The centre of mass of the box door is its centre, expressed in the link frame.
+    centre_world = transform_points(T_WORLD_CABINET, [[0.0, -0.21, 0.6]])[0]
+    np.testing.assert_allclose(transform_points(door.T_export_link, [door.mass.com_link])[0], centre_world, atol=1e-6)
+    # A density override scales that part only.
+    heavy = export(tmp_path, dataclasses.replace(FAST_EXPORT, formats=(), part_densities=(("part_0", 1200.0),)))
+    np.testing.assert_allclose(heavy.model.parts[0].mass.mass_kg, 2.0 * door.mass.mass_kg, rtol=1e-9)
+    np.testing.assert_allclose(heavy.model.parts[1].mass.mass_kg, drawer.mass.mass_kg, rtol=1e-9)
+
+
+def test_open_scan_takes_its_mass_from_the_convex_pieces() -> None:
+    # A TSDF scan of a door is its front surface only: no volume of its own.
+    front = trimesh.Trimesh([[0, 0, 0], [0.5, 0, 0], [0, 0, 0.7], [0.5, 0, 0.7]], [[0, 1, 2], [1, 3, 2]])
+    pieces = decompose(front, "hull", CollisionConfig(min_thickness_m=0.02), "front")
+    mass = mass_properties(front, pieces, density_kg_m3=600.0)
+    assert mass.source == "collision"
+    np.testing.assert_allclose(mass.mass_kg, 600.0 * 0.5 * 0.7 * 0.02, rtol=1e-9)
+    np.testing.assert_allclose(mass.com_link, [0.25, 0.0, 0.35], atol=1e-12)
+    assert np.all(np.linalg.eigvalsh(mass.inertia_link) > 0.0)
+
+
+_vectors = arrays(np.float64, 3, elements=st.floats(-5.0, 5.0, allow_nan=False))
+
+
+@settings(deadline=None, max_examples=200)
+@given(
+    axis=_vectors.filter(lambda a: np.linalg.norm(a) > 1e-3),
+    pivot=_vectors,
+    centroid=_vectors,
+    state=st.floats(-3.0, 3.0),
+    revolute=st.booleans(),
+)
+def test_joint_about_link_z_is_the_formats_joint_transform(
+    axis: np.ndarray, pivot: np.ndarray, centroid: np.ndarray, state: float, revolute: bool
+) -> None:
+    """What every exporter relies on: moving the link frame along or about its own z by s is
+    FORMATS' joint transform of s applied to the canonical part."""
+    joint_type = "revolute" if revolute else "prismatic"
+    T_world_part = part_link_frame(joint_type, axis / np.linalg.norm(axis), pivot if revolute else None, centroid)
+    np.testing.assert_allclose(T_world_part[:3, :3].T @ T_world_part[:3, :3], np.eye(3), atol=1e-12)
+    assert np.linalg.det(T_world_part[:3, :3]) > 0.0
+    if revolute:
+        T_part_moved = make_transform(Rotation.from_rotvec([0.0, 0.0, state]).as_matrix(), np.zeros(3))
+    else:
+        T_part_moved = make_transform(np.eye(3), [0.0, 0.0, state])
+    T_world_world = joint_transform(joint_type, axis, pivot if revolute else None, state)
+    np.testing.assert_allclose(T_world_part @ T_part_moved, T_world_world @ T_world_part, atol=1e-9)
+
+
+def test_revolute_link_frame_lies_on_the_axis(urdf_export: SimulationExports) -> None:
+    twin_dir = _twin_dir(urdf_export)
+    door = read_articulation(twin_dir).parts[0]
+    assert door.pivot_world is not None and np.linalg.norm(door.pivot_world) > 1.0
+    T_export_door = urdf_export.model.parts[0].T_export_link
+    np.testing.assert_allclose(T_export_door[:3, 2], door.axis_world, atol=1e-12)
+    offset = T_export_door[:3, 3] - door.pivot_world
+    np.testing.assert_allclose(np.cross(offset, door.axis_world), 0.0, atol=1e-12)
+
+
+def test_static_only_twin_exports_a_fixed_model(tmp_path: Path) -> None:
+    import pinocchio as pin
+    import yourdfpy
+
+    exports = export(tmp_path, dataclasses.replace(FAST_EXPORT, formats=("urdf",)), with_parts=False)
+    assert exports.urdf is not None
+    urdf = yourdfpy.URDF.load(str(exports.urdf), load_meshes=False)
+    assert list(urdf.link_map) == ["static"] and not urdf.joint_map
+    assert pin.buildModelFromUrdf(str(exports.urdf)).nq == 0
+
+
+def test_missing_mesh_names_the_file(tmp_path: Path) -> None:
+    twin_dir = tmp_path / "twin"
+    write_cabinet_twin(twin_dir)
+    (twin_dir / "meshes" / "part_1.ply").unlink()
+    with pytest.raises(ExportError, match=r"meshes/part_1\.ply: mesh file is missing"):
+        export_simulation(twin_dir, FAST_EXPORT)
+
+
+def test_point_cloud_mesh_is_rejected(tmp_path: Path) -> None:
+    twin_dir = tmp_path / "twin"
+    write_cabinet_twin(twin_dir)
+    trimesh.PointCloud(np.random.default_rng(0).random((50, 3))).export(twin_dir / "meshes" / "static.ply")
+    with pytest.raises(ExportError, match=r"meshes/static\.ply: holds no triangles"):
+        export_simulation(twin_dir, FAST_EXPORT)
+
+
+def test_bad_requests_are_export_errors(tmp_path: Path) -> None:
+    twin_dir = tmp_path / "twin"
+    articulation = write_cabinet_twin(twin_dir)
+    with pytest.raises(
+        ExportError, match=r"part_densities names \['door'\], the twin has parts \['part_0', 'part_1'\]"
+    ):
+        export_simulation(twin_dir, dataclasses.replace(FAST_EXPORT, part_densities=(("door", 900.0),)))
+    still = dataclasses.replace(articulation.parts[1], state_range=(0.0, 0.0))
+    write_articulation(
+        twin_dir / "articulation.json", dataclasses.replace(articulation, parts=(articulation.parts[0], still))
+    )
+    with pytest.raises(ExportError, match=r"articulation\.json: part part_1 has an empty range"):
+        export_simulation(twin_dir, FAST_EXPORT)
+    (twin_dir / "articulation.json").unlink()
+    with pytest.raises(ExportError, match=r"articulation\.json: file is missing"):
+        export_simulation(twin_dir, FAST_EXPORT)
+
+
+def test_convex_pieces_are_thick_and_watertight() -> None:
+    flat = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], [[0, 1, 2], [1, 3, 2]])
+    piece = convex_piece(np.asarray(flat.vertices, dtype=np.float64), min_thickness_m=0.01)
+    assert piece is not None and piece.is_watertight
+    np.testing.assert_allclose(sorted(piece.extents), [0.01, 1.0, 1.0], atol=1e-9)
+    config = CollisionConfig(grid_cell_m=0.25)
+    pieces = decompose(trimesh.creation.box(extents=(1.0, 0.5, 0.02)), "grid", config, "box")
+    assert len(pieces) > 4 and all(p.is_watertight and p.volume > 0.0 for p in pieces)
+    with pytest.raises(ExportError, match="empty.ply: mesh has no triangle"):
+        decompose(trimesh.Trimesh(), "hull", config, "empty.ply")
+
+
+@pytest.mark.slow
+def test_coacd_splits_a_concave_drawer() -> None:
+    pytest.importorskip("coacd")
+    drawer = trimesh.util.concatenate(
+        [
+            _box((0.5, 0.02, 0.2), (0.0, -0.2, 0.1)),
+            _box((0.5, 0.4, 0.01), (0.0, 0.0, 0.005)),
+            _box((0.5, 0.02, 0.2), (0.0, 0.2, 0.1)),
+        ]
+    )
+    pieces = decompose(drawer, "coacd", CollisionConfig(), "drawer")
+    assert len(pieces) >= 3
+    assert sum(p.volume for p in pieces) < 0.5 * drawer.convex_hull.volume

@@ -1,0 +1,37 @@
+"""funrec render writes pictures of a twin at several joint states."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import trimesh
+from PIL import Image
+from test_export_urdf import FAST_EXPORT, write_cabinet_twin
+
+from funrec.camera_poses import write_camera_poses
+from funrec.export.simulation import export_simulation
+from funrec.geometry import make_transform
+from funrec.render import RenderConfig, render_twin
+
+
+def test_render_shows_the_part_moving(tmp_path: Path) -> None:
+    twin = tmp_path / "twin"
+    articulation = write_cabinet_twin(twin)
+    # A camera 1.5 m in front of the door, looking at it (OpenCV axes: z forward, y down).
+    p_world_door = trimesh.load(twin / articulation.parts[0].mesh).centroid
+    p_world_camera = p_world_door + [0.3, -1.5, 0.4]
+    z = (p_world_door - p_world_camera) / np.linalg.norm(p_world_door - p_world_camera)
+    x = np.cross(z, [0.0, 0.0, 1.0])
+    x /= np.linalg.norm(x)
+    T_world_camera = make_transform(np.stack([x, np.cross(z, x), z], axis=1), p_world_camera)
+    write_camera_poses(twin / "camera_poses.txt", np.stack([T_world_camera] * articulation.frame_count))
+    export_simulation(twin, FAST_EXPORT)
+    paths = render_twin(twin, tmp_path / "render", RenderConfig(width=320, height=240, states=3))
+    names = [p.name for p in paths]
+    assert names[0] == "overview.png" and names[-1] == "twin.gif"
+    assert len(paths) == 2 + 3 * len(articulation.parts)
+    first, last = (np.asarray(Image.open(tmp_path / "render" / f"part_0_state{k}.png"), float) for k in (0, 2))
+    assert first.shape == (240, 320, 3)
+    # The door swings across its range: a few percent of the picture changes (the door covers ~15 %).
+    assert np.mean(np.abs(first - last).max(axis=2) > 10) > 0.02
