@@ -1,12 +1,14 @@
 """The ``funrec-robot`` command line: thin handlers over the funrec_robot API.
 
 Exit codes: 0 success, 2 bad input or an impossible request (one line on stderr, the
-traceback with --verbose), 1 a bug (traceback).
+traceback with --verbose), 1 a bug (traceback), 3 a plan that was checked and failed.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import json
 import logging
 import os
 from collections.abc import Callable
@@ -17,6 +19,16 @@ from funrec.cli_runner import run_command
 from funrec.errors import FunrecError
 
 log = logging.getLogger("funrec_robot")
+
+EXIT_CHECK_FAILED = 3
+"""``funrec-robot check`` ran and the plan failed a criterion."""
+
+
+def _number_or_word(text: str) -> str | float:
+    try:
+        return float(text)
+    except ValueError:
+        return text
 
 
 def _cmd_robots(args: argparse.Namespace) -> int:
@@ -79,13 +91,143 @@ def _add_describe(sub: Any) -> None:
     p.set_defaults(handler=_cmd_describe)
 
 
-_COMMANDS: tuple[Callable[[Any], None], ...] = (_add_robots, _add_describe)
+def _cmd_plan(args: argparse.Namespace) -> int:
+    from funrec.config import config_from_args
+    from funrec_robot.catalog import resolve_robot
+    from funrec_robot.plan import PlanConfig, plan_scene
+    from funrec_robot.plan_file import write_plan
+
+    config = config_from_args(PlanConfig, args)
+    start = None if args.start is None else float(args.start)
+    plan = plan_scene(resolve_robot(args.robot), args.scene, args.part, _number_or_word(args.to), start, config)
+    write_plan(args.output, plan)
+    p = plan.provenance
+    print(
+        f"plan for {plan.part} ({plan.joint_type}) {plan.start_state:.3f} -> {plan.target_state:.3f}: {plan.duration:.2f} s, "
+        f"{len(plan.base_poses)} base stop(s), planned in {p['plan_time_s']:.2f} s, written to {args.output}"
+    )
+    return 0
+
+
+def _cmd_check(args: argparse.Namespace) -> int:
+    if args.video:
+        from funrec.offscreen import ensure_gl_backend
+
+        ensure_gl_backend()  # before mujoco is imported: headless video
+    from funrec.config import config_from_args
+    from funrec_robot.catalog import resolve_robot
+    from funrec_robot.check import CheckConfig, check_plan_file
+
+    config = config_from_args(CheckConfig, args)
+    if args.no_force_limit:
+        config = dataclasses.replace(config, max_handle_force=None)
+    robot = None if args.robot is None else resolve_robot(args.robot)
+    report = check_plan_file(args.plan, args.scene, args.joint, args.gt, robot, config, args.video)
+    report_path = args.report if args.report is not None else Path(args.plan).with_suffix(".check.json")
+    Path(report_path).write_text(json.dumps(report.to_json(), indent=1) + "\n")
+    verdict = "PASS" if report.passed else "FAIL (" + ", ".join(f"{f.criterion} at {f.time:.2f} s" for f in report.failures) + ")"
+    print(
+        f"{verdict}: {report.joint} ended at {report.final_state:.3f} (target {report.target_state:.3f}), peak handle force "
+        f"{report.peak_handle_force:.1f} N; report {report_path}" + (f", video {report.video}" if report.video else "")
+    )
+    return 0 if report.passed else EXIT_CHECK_FAILED
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    from funrec_robot.bench import bench_suite, summarize
+    from funrec_robot.catalog import resolve_robot
+
+    def show(row: Any) -> None:
+        status = "PASS" if row.passed else ("FAIL" if row.planned else "NO PLAN")
+        print(f"{row.case:24s} {row.part:8s} {status:7s} plan {row.plan_time:5.2f} s  force {row.peak_handle_force:5.1f} N  {row.failure[:110]}")
+
+    rows = bench_suite(args.suite, resolve_robot(args.robot), args.to, args.only or (), plans_dir=args.plans, progress=show)
+    summary = summarize(rows)
+    if args.output:
+        Path(args.output).write_text(json.dumps(summary, indent=1) + "\n")
+    print(
+        f"{summary['passed']}/{summary['parts']} passed ({summary['planned']} planned); median plan time "
+        f"{summary['median_plan_time_s']:.2f} s; peak handle force median {summary['median_peak_handle_force_N']:.1f} N, "
+        f"max {summary['max_peak_handle_force_N']:.1f} N; plans with collisions {summary['plans_with_collisions']}"
+    )
+    return 0
+
+
+def _default_robot() -> str:
+    from funrec_robot.catalog import DEFAULT_ROBOT
+
+    return DEFAULT_ROBOT
+
+
+def _add_plan(sub: Any) -> None:
+    from funrec.config import add_config_arguments
+    from funrec_robot.plan import PlanConfig
+
+    p = sub.add_parser(
+        "plan",
+        help="plan a mobile manipulator opening or closing one articulated part",
+        description="Place the base (casadi), follow the handle with whole-body IK (mink), time the motion (toppra "
+        "along the handle, ruckig between states) and write plan.json. SCENE is an MJCF scene with gt.json "
+        "(synthetic ground truth) or articulation.json + affordances.json (a twin) beside it, or such a folder.",
+    )
+    p.add_argument("--scene", required=True, help="scene: gt/ or capture folder, twin folder, or their MJCF file")
+    p.add_argument("--part", help="part (joint) name; may be omitted when the scene has one part")
+    p.add_argument("--to", default="open", help="target: open, close, demo or a joint state in rad or m (default: open)")
+    p.add_argument("--from", dest="start", help="the part's state when the robot arrives (default: the scene's)")
+    p.add_argument("--robot", default=_default_robot(), help="robot YAML file or name (default: %(default)s)")
+    p.add_argument("-o", "--output", type=Path, required=True, help="plan.json to write")
+    add_config_arguments(p, PlanConfig)
+    p.set_defaults(handler=_cmd_plan)
+
+
+def _add_check(sub: Any) -> None:
+    from funrec.config import add_config_arguments
+    from funrec_robot.check import CheckConfig
+
+    p = sub.add_parser(
+        "check",
+        help="execute a plan in MuJoCo and judge it (exit 0 only on pass)",
+        description="Run plan.json on the robot's servos with an admittance law on the handle wrench; the grasp is an "
+        "equality attachment that engages only when the closed gripper is at the handle. Passes if the joint ends within "
+        "5 deg / 2 cm of the target, no robot-scene contact other than gripper and handle, peak handle force within the "
+        "bound, no joint position, velocity or effort limit violated. Writes a JSON report; exit 3 on failure.",
+    )
+    p.add_argument("plan", type=Path, help="plan.json")
+    p.add_argument("--scene", help="scene to check in (default: --gt's scene.xml, else the plan's scene)")
+    p.add_argument("--joint", help="joint of the checked scene the plan operates (default: the plan's part)")
+    p.add_argument("--gt", type=Path, help="ground-truth folder: check in its scene.xml, mapping a twin's frame through camera 0")
+    p.add_argument("--robot", help="robot YAML file (default: the plan's)")
+    p.add_argument("--no-force-limit", action="store_true", help="do not judge the handle force")
+    p.add_argument("--video", type=Path, help="write an MP4 (or .gif) of the execution")
+    p.add_argument("--report", type=Path, help="report JSON (default: PLAN.check.json)")
+    add_config_arguments(p, CheckConfig)
+    p.set_defaults(handler=_cmd_check)
+
+
+def _add_bench(sub: Any) -> None:
+    p = sub.add_parser(
+        "bench",
+        help="plan and check every part of a folder of synthetic captures",
+        description="For each capture with gt/ under SUITE, plan the target for every part in its ground-truth scene "
+        "and check it there; print one line per part and a summary (success rate, plan time, handle force, collisions).",
+    )
+    p.add_argument("suite", type=Path, help="folder of capture folders (e.g. bench_suite)")
+    p.add_argument("--robot", default=_default_robot(), help="robot YAML file or name (default: %(default)s)")
+    p.add_argument("--to", default="open", help="target of every plan (default: open)")
+    p.add_argument("--only", nargs="*", help="capture names to restrict to")
+    p.add_argument("--plans", type=Path, help="folder to write the plans to")
+    p.add_argument("-o", "--output", type=Path, help="write the summary and rows as JSON")
+    p.set_defaults(handler=_cmd_bench)
+
+
+_COMMANDS: tuple[Callable[[Any], None], ...] = (_add_robots, _add_describe, _add_plan, _add_check, _add_bench)
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="funrec-robot",
-        description="FunREC robots: describe the mobile manipulators that replay reconstructed interactions.",
+        description="FunREC robots: describe the mobile manipulators that replay reconstructed interactions, plan "
+        "their interactions with articulated parts and check the plans in simulation.",
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="log detail and show tracebacks of errors")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")

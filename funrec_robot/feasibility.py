@@ -1,0 +1,179 @@
+"""Robot-physics feasibility of a plan, checked kinematically on the robot-in-scene model: collisions along
+joint motions, gravity loads against effort limits, speeds the simulated joints can sustain, where a part
+runs into the rest of the scene.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from funrec.errors import PlanningError
+from funrec.geometry.joints import joint_transform
+from funrec.typed import FloatArray
+from funrec_robot.ik import WholeBodyIK
+from funrec_robot.plan_file import Plan
+from funrec_robot.robot import RobotDescription
+from funrec_robot.scene import bodies_geoms, floor_geoms, part_geoms, part_joint, robot_bodies, subtree_bodies
+from funrec_robot.sim_model import robot_indices
+
+
+class GravityOverload(PlanningError):
+    """A planned configuration needs more of a joint's effort limit than allowed just to hold the arm up."""
+
+
+def dynamic_limits(
+    robot: RobotDescription, model: mujoco.MjModel, share_damping: float, share_inertia: float
+) -> tuple[FloatArray, FloatArray]:
+    """(nq,) speed and (nq,) acceleration limits for timing: the robot's, lowered where the simulated joint's
+    damping or armature would take more than a share of its effort limit (``share_damping`` at full speed,
+    ``share_inertia`` at full acceleration), so that the servos can follow the plan."""
+    indices = robot_indices(robot, model)
+    damping = model.dof_damping[indices.dof]
+    armature = model.dof_armature[indices.dof]
+    with np.errstate(divide="ignore"):
+        v_cap = np.where(damping > 0, share_damping * robot.effort_max / damping, np.inf)
+        a_cap = np.where(armature > 0, share_inertia * robot.effort_max / armature, np.inf)
+    return np.minimum(robot.v_max, v_cap), np.minimum(robot.a_max, a_cap)
+
+
+def gravity_overload(
+    robot: RobotDescription,
+    model: mujoco.MjModel,
+    ik: WholeBodyIK,
+    q: FloatArray,
+    states: FloatArray,
+    fingers: float,
+    share: float,
+) -> tuple[str, float, float] | None:
+    """The first planning joint that must hold more than ``share`` of its effort limit against gravity at one
+    of the (K, nq) configurations, as (joint, load, limit) in N or N m; None if none does."""
+    indices = ik.indices
+    data = mujoco.MjData(model)
+    allowed = share * robot.effort_max
+    for qk, state in zip(q, states):
+        data.qpos[:] = ik.full_q(qk, float(state), fingers)
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_comPos(model, data)
+        mujoco.mj_rne(model, data, 0, data.qfrc_bias)  # with zero velocity: the gravity load
+        load = np.abs(data.qfrc_bias[indices.dof])
+        if robot.gravity_compensation:
+            load = np.abs(data.qfrc_bias[indices.dof] * model.body_gravcomp[model.dof_bodyid[indices.dof]])
+        over = np.flatnonzero(load > allowed)
+        if len(over):
+            j = int(over[0])
+            return robot.joint_names[j], float(load[j]), float(robot.effort_max[j])
+    return None
+
+
+def first_blocked_state(
+    model: mujoco.MjModel, joint: int, start: float, target: float, step: float
+) -> tuple[float, str] | None:
+    """First state between start and target (scanned every ``step``, rad or m) where the part of a scene joint
+    penetrates the rest of the scene (not counting contacts it already has at the start), and the geom it
+    meets; None if it moves freely."""
+    states = np.linspace(start, target, max(2, int(np.ceil(abs(target - start) / step)) + 1))
+    part = set(part_geoms(model, joint).tolist())
+    others = set(np.flatnonzero(np.isin(model.geom_bodyid, robot_bodies(model), invert=True)).tolist()) - part
+    data = mujoco.MjData(model)
+    resting: set[tuple[int, int]] = set()
+    for k, state in enumerate(states):
+        data.qpos[:] = model.qpos0
+        data.qpos[model.jnt_qposadr[joint]] = state
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_collision(model, data)
+        pairs = {
+            (int(c.geom1), int(c.geom2))
+            for c in data.contact[: data.ncon]
+            if ((c.geom1 in part and c.geom2 in others) or (c.geom2 in part and c.geom1 in others)) and c.dist < 0.0
+        }
+        if k == 0:
+            resting = pairs
+            continue
+        new = pairs - resting
+        if new:
+            g1, g2 = next(iter(new))
+            return float(state), model.geom(g2 if g1 in part else g1).name
+    return None
+
+
+def first_collision(
+    model: mujoco.MjModel,
+    ik: WholeBodyIK,
+    q: FloatArray,
+    part_state: float,
+    fingers: float,
+    allowed: set[int],
+    floor: set[int],
+) -> tuple[str, str] | None:
+    """First robot-scene contact along (K, nq) planning-joint samples (kinematic, penetration only), other
+    than the gripper with the handle."""
+    data = mujoco.MjData(model)
+    robot_geoms = set(bodies_geoms(model, ik.indices.bodies).tolist())
+    for qk in q:
+        data.qpos[:] = ik.full_q(qk, part_state, fingers)
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_collision(model, data)
+        for c in data.contact[: data.ncon]:
+            g1, g2 = int(c.geom1), int(c.geom2)
+            if (g1 in robot_geoms) == (g2 in robot_geoms):
+                continue
+            r, other = (g1, g2) if g1 in robot_geoms else (g2, g1)
+            if other in floor or other in allowed:
+                continue
+            return model.geom(r).name, model.geom(other).name
+    return None
+
+
+def kinematic_collisions(
+    robot: RobotDescription, model: mujoco.MjModel, plan: Plan, every: int = 5, allowed_radius: float = 0.06
+) -> list[tuple[float, str, str]]:
+    """Robot-scene contacts of a plan replayed kinematically (no physics), other than the gripper touching
+    the part within ``allowed_radius`` of the handle.
+
+    Returns:
+        (time s, robot geom, scene geom) for each sampled contact.
+    """
+    indices = robot_indices(robot, model)
+    joint = part_joint(model, plan.part)
+    qadr = model.jnt_qposadr[joint]
+    part = set(part_geoms(model, joint).tolist())
+    robot_set = set(bodies_geoms(model, indices.bodies).tolist())
+    hand = int(model.site_bodyid[indices.grasp_site])
+    gripper = set(bodies_geoms(model, subtree_bodies(model, hand)).tolist())
+    data = mujoco.MjData(model)
+    out = []
+    T0 = plan.T_world_grasp_start
+    p_contact0 = T0[:3, 3] + plan.provenance.get("grasp", {}).get("depth_m", 0.0) * T0[:3, 2]
+    scene = np.flatnonzero(~np.isin(model.geom_bodyid, indices.bodies))
+    floor = set(floor_geoms(model, scene).tolist())
+    for i in range(0, len(plan.t), every):
+        data.qpos[:] = model.qpos0
+        data.qpos[indices.qpos] = plan.q[i]
+        data.qpos[indices.held_qpos] = indices.held_values
+        data.qpos[indices.gripper_qpos] = plan.gripper_command[i]
+        data.qpos[qadr] = plan.part_state[i]
+        mujoco.mj_forward(model, data)
+        T_move = joint_transform(plan.joint_type, plan.axis_world, plan.pivot_world, plan.part_state[i] - plan.start_state)
+        p_handle = T_move[:3, :3] @ p_contact0 + T_move[:3, 3]
+        for c in data.contact[: data.ncon]:
+            g1, g2 = int(c.geom1), int(c.geom2)
+            if (g1 in robot_set) == (g2 in robot_set):
+                continue
+            r, s = (g1, g2) if g1 in robot_set else (g2, g1)
+            if s in floor:
+                continue
+            if r in gripper and s in part and np.linalg.norm(c.pos - p_handle) < allowed_radius:
+                continue
+            out.append((float(plan.t[i]), model.geom(r).name, model.geom(s).name))
+    return out
+
+
+__all__ = [
+    "GravityOverload",
+    "dynamic_limits",
+    "first_blocked_state",
+    "first_collision",
+    "gravity_overload",
+    "kinematic_collisions",
+]

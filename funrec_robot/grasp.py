@@ -1,0 +1,213 @@
+"""Where and how the gripper takes a handle: the grasp frame along the handle's path (tilted for reach,
+rolled about the handle as the part turns), how deep the fingers go, how wide they open.
+
+Pure geometry on the task and the robot's finger boxes; no simulation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from funrec.typed import FloatArray
+from funrec_robot.robot import RobotDescription
+from funrec_robot.robot_geometry import RobotGeometry
+from funrec_robot.task import (
+    ArticulationTask,
+    T_world_grasp_canonical,
+    T_world_grasp_path,
+    grasp_free_axis,
+    roll_to_hold,
+    rotation_about_grasp_axis,
+)
+
+
+@dataclass(frozen=True)
+class GraspConfig:
+    """Settings of the grasp."""
+
+    fingertip_clearance: float = 0.012
+    """Gap wanted between the fingertips and the part's front behind the handle, m."""
+    min_fingertip_clearance: float = 0.004
+    """Smallest such gap accepted when the handle stands too close to the front for the wanted one, m."""
+    unknown_surface_offset: float = 0.02
+    """Handle standoff from the front assumed when the task does not know it, m."""
+    pad_margin: float = 0.003
+    """The contact point stays this far inside the finger pads' depth range, m."""
+    grip_margin: float = 0.015
+    """Each finger opens this much wider than half the handle's thickness before closing on it, m."""
+    grip_squeeze: float = 0.002
+    """Each finger is commanded this far into the handle while holding it (a light squeeze), m."""
+    release_gap: float = 0.005
+    """On letting go each finger opens this far clear of the handle, m."""
+    max_roll: float = float(np.deg2rad(45.0))
+    """Largest turn of the handle between the pads about the grasp's free axis, rad."""
+    tilts: tuple[float, ...] = (0.0, -0.2, 0.2, -0.35, 0.35, -0.5, 0.5, -0.7, 0.7, -0.9, 0.9, -1.1, 1.1)
+    """Tilts of the grasp about the handle tried for reach (low and high handles), rad."""
+    tilt_cost: float = 0.1
+    """Preference for small tilts when ordering them, m/rad."""
+    tilt_deadband: float = 0.35
+    """Wrist targets within this height of the shoulder need no tilt, m."""
+    handle_radius: float = 0.006
+    """Geoms of the part within this distance of the contact point are the handle (the gripper may touch
+    them; it avoids the rest of the part), m."""
+
+
+@dataclass(frozen=True)
+class GraspCandidate:
+    """One way of taking the handle, with its frames along the path."""
+
+    tilt: float
+    """Tilt about the handle, rad."""
+    depth: float
+    """Distance of the grasp frame before the contact point along the approach, m."""
+    opening: float
+    """Gripper command before closing."""
+    holding: float
+    """Gripper command while holding."""
+    frames: FloatArray
+    """(N, 4, 4) T_world_grasp along the path states."""
+
+
+FLIP = np.diag([-1.0, -1.0, 1.0, 1.0])
+"""Half a turn about the grasp z: the same grasp for a symmetric parallel gripper."""
+
+
+def tilt_axis(task: ArticulationTask) -> int:
+    """Grasp axis (0 x, 1 y) of a static tilt: the more horizontal one, so that tilting pitches the approach
+    up or down (for a horizontal bar its own axis; for a vertical bar or a knob on a vertical hinge, the other)."""
+    R = T_world_grasp_canonical(task)[:3, :3]
+    return int(np.argmin(np.abs(R[2, :2])))
+
+
+def opening_commands(
+    robot: RobotDescription, task: ArticulationTask, config: GraspConfig, tilt: float = 0.0
+) -> tuple[float, float]:
+    """Gripper commands before closing and while holding: each finger (a slide whose command is its
+    position) half the handle's extent across the pads plus a margin from the middle (a tilted grasp sees
+    part of the handle's depth), then half its thickness minus the squeeze; fully open and fully closed when
+    the thickness is unknown."""
+    if task.handle_width is None:
+        return robot.gripper.open, robot.gripper.closed
+    low, high = sorted((robot.gripper.closed, robot.gripper.open))
+    depth = task.handle_width if task.handle_depth is None else task.handle_depth
+    across = task.handle_width * np.cos(tilt) + depth * abs(np.sin(tilt))
+    opening = float(np.clip(across / 2 + config.grip_margin, low, high))
+    holding = float(np.clip(task.handle_width / 2 - config.grip_squeeze, low, high))
+    return opening, holding
+
+
+def release_command(robot: RobotDescription, holding: float, config: GraspConfig) -> float:
+    """Gripper command on letting go: ``release_gap`` looser than holding, no wider. A grasp rolled against the
+    part's front has a finger close to it; opening wide would push the part away."""
+    low, high = sorted((robot.gripper.closed, robot.gripper.open))
+    looser = config.grip_squeeze + config.release_gap
+    wider = holding + looser if robot.gripper.open >= robot.gripper.closed else holding - looser
+    return float(np.clip(wider, low, high))
+
+
+def grasp_depth(
+    task: ArticulationTask, geometry: RobotGeometry, opening: float, tilt: float, config: GraspConfig
+) -> float | None:
+    """How far before the contact point the grasp frame sits so that every finger corner, with the gripper
+    at ``opening`` and tilted by ``tilt`` about the contact point, stays ``fingertip_clearance`` in front of
+    the part's front, keeping the contact ``pad_margin`` inside the pads; None if the gap would then be
+    below ``min_fingertip_clearance``."""
+    offset = task.surface_offset if task.surface_offset is not None else config.unknown_surface_offset
+    corners = geometry.finger_corners.copy()
+    # Fingers slide along the grasp y: move the corners from fully open to this opening.
+    corners[:, 1] -= np.sign(corners[:, 1]) * max(finger_half_opening(geometry) - opening, 0.0)
+    R = rotation_about_grasp_axis(tilt_axis(task), [tilt])[0]
+    reach = float(np.max((corners @ R.T)[:, 2]))
+    depth = min(
+        max(0.0, (reach - offset + config.fingertip_clearance) / np.cos(tilt)),
+        geometry.finger_depth_range[1] - config.pad_margin,
+    )
+    if offset - (reach - depth * np.cos(tilt)) < config.min_fingertip_clearance:
+        return None
+    return depth
+
+
+def finger_half_opening(geometry: RobotGeometry) -> float:
+    """Half-opening of the open gripper: the smallest |y| of the finger corners (their inner faces), m."""
+    return float(np.min(np.abs(geometry.finger_corners[:, 1])))
+
+
+def about_contact(axis: int, angles: FloatArray, depth: float) -> FloatArray:
+    """(N, 4, 4) rotations about a grasp axis through the contact point (``depth`` ahead along grasp z),
+    to be applied on the right of grasp frames."""
+    shift = np.eye(4)
+    shift[2, 3] = depth
+    R = np.tile(np.eye(4), (len(angles), 1, 1))
+    R[:, :3, :3] = rotation_about_grasp_axis(axis, angles)
+    return shift @ R @ np.linalg.inv(shift)
+
+
+def handle_frames(
+    task: ArticulationTask, states: FloatArray, depth: float, tilt: float, config: GraspConfig
+) -> FloatArray:
+    """(N, 4, 4) grasp frames along the path.
+
+    The grasp is first tilted by ``tilt`` about the handle (its free axis for a bar, its horizontal x for a
+    knob) through the contact point, then along the path rolled about the free axis so that the gripper turns
+    as little as the pads allow (a bar's total roll stays within ``max_roll``).
+    """
+    axis = grasp_free_axis(task)
+    pitch_axis = tilt_axis(task)
+    T0 = T_world_grasp_canonical(task, depth) @ about_contact(pitch_axis, np.array([tilt]), depth)[0]
+    frames = T_world_grasp_path(task, states, T0)
+    roll = roll_to_hold(frames[:, :3, :3], frames[0, :3, :3], axis, np.inf)
+    spent = tilt if pitch_axis == axis else 0.0
+    roll = np.clip(roll, -config.max_roll - spent, config.max_roll - spent)
+    return frames @ about_contact(axis, roll, depth)
+
+
+def offset_along_approach(T_world_grasp: FloatArray, distance: float) -> FloatArray:
+    """(4, 4) the grasp frame moved back by ``distance`` (m) against its approach (z)."""
+    T = T_world_grasp.copy()
+    T[:3, 3] -= distance * T[:3, 2]
+    return T
+
+
+def grasp_candidates(
+    robot: RobotDescription,
+    task: ArticulationTask,
+    states: FloatArray,
+    geometry: RobotGeometry,
+    r_max: float,
+    config: GraspConfig,
+) -> list[GraspCandidate]:
+    """Grasps to try, best first: untilted unless the wrist targets would sit farther above or below the
+    shoulder than ``tilt_deadband``; tilts whose fingers cannot clear the part's front, or that put a wrist
+    target beyond ``r_max`` (m) above or below the shoulder, are left out."""
+    scored = []
+    for tilt in config.tilts:
+        opening, holding = opening_commands(robot, task, config, tilt)
+        depth = grasp_depth(task, geometry, opening, tilt, config)
+        if depth is None:
+            continue
+        frames = handle_frames(task, states, depth, tilt, config)
+        wrist = frames[:, :3, 3] - frames[:, :3, 2] * geometry.wrist_to_grasp
+        rise = float(np.max(np.abs(wrist[:, 2] - geometry.p_base_shoulder[2])))
+        if rise < r_max:
+            score = max(rise - config.tilt_deadband, 0.0) + config.tilt_cost * abs(tilt)
+            scored.append((score, GraspCandidate(tilt, depth, opening, holding, frames)))
+    scored.sort(key=lambda item: item[0])
+    return [candidate for _, candidate in scored]
+
+
+__all__ = [
+    "FLIP",
+    "GraspCandidate",
+    "GraspConfig",
+    "about_contact",
+    "finger_half_opening",
+    "grasp_candidates",
+    "grasp_depth",
+    "handle_frames",
+    "offset_along_approach",
+    "opening_commands",
+    "release_command",
+    "tilt_axis",
+]

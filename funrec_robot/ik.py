@@ -1,0 +1,287 @@
+"""Whole-body inverse kinematics with mink: base and arm together put the grasp frame on a target.
+
+One :class:`WholeBodyIK` works on the robot-in-scene MuJoCo model (``build_mujoco_model``): a FrameTask on
+the grasp site, a PostureTask towards a reference (home arm, planned base pose), configuration and
+velocity limits, and collision avoidance between robot geoms and the scene geoms near the task. Scene
+joints (the articulated part at the state being planned), fingers and held joints are frozen.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import mink
+import mujoco
+import numpy as np
+import numpy.typing as npt
+
+from funrec.errors import PlanningError
+from funrec.typed import FloatArray, IntArray
+from funrec_robot.robot import RobotDescription
+from funrec_robot.scene import bodies_geoms, floor_geoms, subtree_bodies
+from funrec_robot.sim_model import ROBOT_PREFIX, robot_indices
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class IKConfig:
+    """Settings of the whole-body IK."""
+
+    position_tolerance: float = 0.001
+    """A target counts as reached within this distance of the grasp site, m."""
+    orientation_tolerance: float = 0.01
+    """... and within this angle of its orientation, rad."""
+    max_iterations: int = 250
+    """Differential-IK steps per target before giving up."""
+    stall_iterations: int = 8
+    """Stop early when the error has not dropped by ``stall_fraction`` over this many steps."""
+    stall_fraction: float = 0.02
+    """Relative error decrease that counts as progress over ``stall_iterations`` steps."""
+    step_time: float = 0.02
+    """Time of one differential-IK step, s: velocity limits bound each step to v_max * step_time, which keeps
+    a step (a few cm at the hand) shorter than ``collision_detection``."""
+    position_cost: float = 1.0
+    """FrameTask position weight, 1/m."""
+    orientation_cost: float = 0.5
+    """FrameTask orientation weight, 1/rad."""
+    posture_cost_arm: float = 0.01
+    """PostureTask weight on the arm joints (towards the reference posture)."""
+    posture_cost_base: float = 0.2
+    """PostureTask weight on the base joints (towards the planned base pose)."""
+    limit_margin: float = 0.05
+    """Planned joint positions stay this far inside the position limits (room for the compliant controller
+    to move the arm either way), rad or m."""
+    damping: float = 1e-3
+    """Levenberg-Marquardt damping of the QP."""
+    collision_distance: float = 0.05
+    """Smallest gap kept between the robot's base and torso and the scene, m (the heavy base tracks its
+    plan least closely)."""
+    arm_collision_distance: float = 0.02
+    """Smallest gap kept between the arm and the scene or the robot's body, m."""
+    gripper_collision_distance: float = 0.0015
+    """Smallest gap kept between the gripper and the scene, m (it works millimetres from the part's front)."""
+    collision_detection: float = 0.1
+    """Gap below which a pair of geoms enters the QP, m."""
+    collision_gain: float = 0.5
+    """Fraction of a gap a step may close (mink CollisionAvoidanceLimit gain)."""
+    scene_radius: float = 0.8
+    """Scene geoms within this distance of the region of interest are avoided, m."""
+    solver: str = "daqp"
+    """QP solver used through qpsolvers."""
+
+
+@dataclass(frozen=True)
+class IKResult:
+    """Joint positions reaching a sequence of targets."""
+
+    q: FloatArray
+    """(N, nq) planning-joint positions (robot.joint_names order), m or rad."""
+    position_error: FloatArray
+    """(N,) distance from grasp site to target, m."""
+    orientation_error: FloatArray
+    """(N,) angle between grasp site and target orientations, rad."""
+
+
+def _dofs(model: mujoco.MjModel, joints: IntArray) -> list[int]:
+    return [int(model.jnt_dofadr[j]) for j in joints]
+
+
+class WholeBodyIK:
+    """Differential IK for one robot in one scene, reused for every target of a plan.
+
+    Args:
+        robot: the robot.
+        model: robot-in-scene model from ``build_mujoco_model``.
+        part_joint: id of the articulated part's joint (its state is set per target and frozen).
+        region_world: (N, 3) points where the robot works (handle path, base poses); scene geoms near them
+            are avoided.
+        allowed_geoms: scene geoms the gripper may touch (the handle).
+        config: settings.
+    """
+
+    def __init__(
+        self,
+        robot: RobotDescription,
+        model: mujoco.MjModel,
+        part_joint: int,
+        region_world: npt.ArrayLike,
+        allowed_geoms: npt.ArrayLike,
+        config: IKConfig = IKConfig(),
+    ) -> None:
+        self.robot = robot
+        self.model = model
+        self.config = config
+        self.indices = robot_indices(robot, model)
+        self.part_qpos = int(model.jnt_qposadr[part_joint])
+        self.configuration = mink.Configuration(model)
+        self.n_base = len(robot.base_joints)
+
+        planning = set(int(d) for d in self.indices.dof)
+        frozen = [d for d in range(model.nv) if d not in planning]
+        self.constraints = [mink.DofFreezingTask(model, dof_indices=frozen)] if frozen else []
+        self.frame_task = mink.FrameTask(
+            self.indices.grasp_site_name, "site", position_cost=config.position_cost, orientation_cost=config.orientation_cost
+        )
+        posture_cost = np.zeros(model.nv)
+        posture_cost[self.indices.dof[: self.n_base]] = config.posture_cost_base
+        posture_cost[self.indices.dof[self.n_base :]] = config.posture_cost_arm
+        self.posture_task = mink.PostureTask(model, cost=posture_cost)
+        velocities = {ROBOT_PREFIX + name: float(v) for name, v in zip(robot.joint_names, robot.v_max)}
+        position_limit = mink.ConfigurationLimit(model, min_distance_from_limits=config.limit_margin)
+        # Only the planning joints are limited: a frozen scene joint may be set past its range (a twin's
+        # range can be wrong) and must not make the QP infeasible.
+        others = np.setdiff1d(np.arange(model.nq), self.indices.qpos)
+        position_limit.lower[others] = -mujoco.mjMAXVAL
+        position_limit.upper[others] = mujoco.mjMAXVAL
+        self.limits: list[mink.Limit] = [position_limit, mink.VelocityLimit(model, velocities)]
+        groups = self._collision_pairs(
+            np.atleast_2d(np.asarray(region_world, dtype=np.float64)), np.asarray(allowed_geoms, dtype=np.int64)
+        )
+        distances = (config.collision_distance, config.arm_collision_distance, config.gripper_collision_distance)
+        for pairs, distance in zip(groups, distances):
+            if pairs:
+                self.limits.append(
+                    mink.CollisionAvoidanceLimit(
+                        model,
+                        pairs,
+                        gain=config.collision_gain,
+                        minimum_distance_from_collisions=distance,
+                        collision_detection_distance=config.collision_detection,
+                    )
+                )
+
+    def _collision_pairs(
+        self, region: FloatArray, allowed: IntArray
+    ) -> tuple[list[tuple[list[int], list[int]]], ...]:
+        """Pairs of (base and torso vs scene), (arm vs scene, forearm vs body), (gripper vs scene but the handle)."""
+        model, robot = self.model, self.robot
+        collides = (model.geom_contype != 0) | (model.geom_conaffinity != 0)
+        robot_geoms = bodies_geoms(model, self.indices.bodies)
+        robot_geoms = robot_geoms[collides[robot_geoms]]
+        hand_body = int(model.site_bodyid[self.indices.grasp_site])
+        gripper = np.intersect1d(robot_geoms, bodies_geoms(model, subtree_bodies(model, hand_body)))
+        arm_root = int(model.jnt_bodyid[model.joint(ROBOT_PREFIX + robot.arm_joints[0]).id])
+        arm = np.intersect1d(robot_geoms, bodies_geoms(model, subtree_bodies(model, arm_root)))
+        body = np.setdiff1d(robot_geoms, arm)
+        forearm_root = int(model.jnt_bodyid[model.joint(ROBOT_PREFIX + robot.arm_joints[min(3, len(robot.arm_joints) - 1)]).id])
+        forearm = np.intersect1d(robot_geoms, bodies_geoms(model, subtree_bodies(model, forearm_root)))
+
+        scene = np.flatnonzero(collides & ~np.isin(model.geom_bodyid, self.indices.bodies))
+        scene = np.setdiff1d(scene, floor_geoms(model, scene))
+        data = mujoco.MjData(model)
+        mujoco.mj_kinematics(model, data)
+        reach = self.config.scene_radius
+        distance = np.linalg.norm(data.geom_xpos[scene][:, None, :] - region[None, :, :], axis=2).min(axis=1)
+        scene = scene[distance - model.geom_rbound[scene] < reach]
+        arm = np.setdiff1d(arm, gripper)
+        body_pairs = [(body.tolist(), scene.tolist())]
+        arm_pairs = [(arm.tolist(), scene.tolist()), (np.setdiff1d(forearm, gripper).tolist(), body.tolist())]
+        gripper_pairs = [(gripper.tolist(), np.setdiff1d(scene, allowed).tolist()), (gripper.tolist(), body.tolist())]
+        return tuple([(a, b) for a, b in pairs if a and b] for pairs in (body_pairs, arm_pairs, gripper_pairs))
+
+    def full_q(self, q: npt.ArrayLike, part_state: float, fingers: float) -> FloatArray:
+        """(model.nq,) model configuration for planning joints ``q``, the part at ``part_state`` and the finger
+        joints at ``fingers`` (m or rad), other joints at their reference or held values."""
+        qpos = self.model.qpos0.copy()
+        qpos[self.indices.qpos] = q
+        qpos[self.indices.held_qpos] = self.indices.held_values
+        qpos[self.indices.gripper_qpos] = fingers
+        qpos[self.part_qpos] = part_state
+        return qpos
+
+    def grasp_pose(self, q: npt.ArrayLike, part_state: float, fingers: float) -> FloatArray:
+        """(4, 4) T_world_grasp of the grasp site at planning-joint positions ``q``."""
+        self.configuration.update(self.full_q(q, part_state, fingers))
+        data = self.configuration.data
+        T = np.eye(4)
+        T[:3, :3] = data.site_xmat[self.indices.grasp_site].reshape(3, 3)
+        T[:3, 3] = data.site_xpos[self.indices.grasp_site]
+        return T
+
+    def solve(
+        self,
+        T_world_grasp: npt.ArrayLike,
+        q_seed: npt.ArrayLike,
+        q_posture: npt.ArrayLike,
+        part_state: float,
+        fingers: float,
+        max_iterations: int | None = None,
+    ) -> tuple[FloatArray, float, float]:
+        """Move the grasp site onto one target from a seed configuration.
+
+        Returns:
+            (nq,) planning-joint positions, position error (m), orientation error (rad). Not raising: the
+            caller decides what residual is acceptable.
+        """
+        cfg = self.config
+        configuration = self.configuration
+        configuration.update(self.full_q(q_seed, part_state, fingers))
+        self.posture_task.set_target(self.full_q(q_posture, part_state, fingers))
+        target = mink.SE3.from_matrix(np.asarray(T_world_grasp, dtype=np.float64))
+        self.frame_task.set_target(target)
+        tasks = [self.frame_task, self.posture_task]
+        position_error = orientation_error = np.inf
+        history: list[float] = []
+        for _ in range(cfg.max_iterations if max_iterations is None else max_iterations):
+            error = self.frame_task.compute_error(configuration)
+            position_error, orientation_error = float(np.linalg.norm(error[:3])), float(np.linalg.norm(error[3:]))
+            if position_error < cfg.position_tolerance and orientation_error < cfg.orientation_tolerance:
+                break
+            history.append(position_error + 0.1 * orientation_error)
+            if len(history) > cfg.stall_iterations and history[-1] > (1.0 - cfg.stall_fraction) * history[-1 - cfg.stall_iterations]:
+                break  # stalled: a limit (collision, joint range) holds the frame off its target
+            try:
+                velocity = mink.solve_ik(
+                    configuration,
+                    tasks,
+                    cfg.step_time,
+                    cfg.solver,
+                    damping=cfg.damping,
+                    limits=self.limits,
+                    constraints=self.constraints,
+                )
+            except mink.NoSolutionFound as exc:
+                raise PlanningError(f"whole-body IK: the QP has no solution ({exc}); the robot may start in collision") from None
+            configuration.integrate_inplace(velocity, cfg.step_time)
+        else:
+            error = self.frame_task.compute_error(configuration)
+            position_error, orientation_error = float(np.linalg.norm(error[:3])), float(np.linalg.norm(error[3:]))
+        return configuration.q[self.indices.qpos].copy(), position_error, orientation_error
+
+    def track(
+        self,
+        T_world_grasp: npt.ArrayLike,
+        part_states: npt.ArrayLike,
+        q_start: npt.ArrayLike,
+        q_posture: npt.ArrayLike,
+        fingers: float,
+    ) -> IKResult:
+        """Follow a path of targets, each solved from the previous solution.
+
+        The arm's posture reference is the previous solution (the arm moves as little as it can, instead of
+        swinging through its null space back towards home); the base's is the planned base pose.
+
+        Args:
+            T_world_grasp: (N, 4, 4) targets.
+            part_states: (N,) part state at each target (the part moves with the handle).
+            q_start: (nq,) seed of the first target.
+            q_posture: (N, nq) posture reference per target (its base joints are used).
+            fingers: finger joint position held throughout, m or rad.
+        """
+        T_world_grasp = np.asarray(T_world_grasp, dtype=np.float64)
+        states = np.asarray(part_states, dtype=np.float64)
+        q_posture = np.asarray(q_posture, dtype=np.float64)
+        q = np.asarray(q_start, dtype=np.float64)
+        out, pos_err, rot_err = [], [], []
+        for T, state, posture in zip(T_world_grasp, states, q_posture):
+            reference = np.concatenate([posture[: self.n_base], q[self.n_base :]])
+            q, e_p, e_r = self.solve(T, q, reference, float(state), fingers)
+            out.append(q)
+            pos_err.append(e_p)
+            rot_err.append(e_r)
+        return IKResult(np.array(out), np.array(pos_err), np.array(rot_err))
+
+
+__all__ = ["IKConfig", "IKResult", "WholeBodyIK"]

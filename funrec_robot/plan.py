@@ -1,0 +1,477 @@
+"""Plan one interaction: base placement (casadi), whole-body IK along the handle path (mink), timing (toppra,
+ruckig). The only module that knows the order of the planning steps.
+
+approach (ruckig: home -> pre-grasp -> grasp) | grasp (close the gripper) | actuate (toppra along the handle
+path) | release (open the gripper) | retreat (ruckig back along the approach).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from funrec.errors import PlanningError
+from funrec.typed import FloatArray
+from funrec_robot.feasibility import (
+    GravityOverload,
+    dynamic_limits,
+    first_blocked_state,
+)
+from funrec_robot.grasp import (
+    GraspConfig,
+    grasp_candidates,
+    release_command,
+)
+from funrec_robot.ik import IKConfig
+from funrec_robot.plan_file import Plan, Segment, sha256_file
+from funrec_robot.retime import RetimeConfig, Trajectory, point_to_point, retime_path
+from funrec_robot.robot import RobotDescription, load_robot
+from funrec_robot.robot_geometry import RobotGeometry, measure_robot
+from funrec_robot.scene import (
+    bodies_geoms,
+    part_geoms,
+    part_joint,
+    part_sweep_footprint,
+    robot_bodies,
+    static_footprint,
+)
+from funrec_robot.sim_model import build_mujoco_model
+from funrec_robot.task import (
+    ArticulationTask,
+    T_world_grasp_canonical,
+    grasp_free_axis,
+    path_states,
+    resolve_target,
+)
+from funrec_robot.task_sources import load_task, locate_scene
+from funrec_robot.trajopt import PlacementConfig, PlacementProblem, place_base
+from funrec_robot.whole_body import whole_body_configurations
+
+log = logging.getLogger(__name__)
+
+PLANNER_VERSION = "funrec_robot.plan/1"
+"""Written into every plan's provenance."""
+
+
+@dataclass(frozen=True)
+class PlanConfig:
+    """Settings of interaction planning (nested: placement, IK, timing, grasp)."""
+
+    placement: PlacementConfig = field(default_factory=PlacementConfig)
+    """Base placement."""
+    ik: IKConfig = field(default_factory=IKConfig)
+    """Whole-body IK."""
+    retime: RetimeConfig = field(default_factory=RetimeConfig)
+    """Time parametrisation."""
+    grasp: GraspConfig = field(default_factory=GraspConfig)
+    """Grasp geometry."""
+    pregrasp_distance: float = 0.10
+    """The gripper comes onto the handle along the approach from this far out, m."""
+    retreat_distance: float = 0.12
+    """... and leaves it along the approach by this much (or as far as it can, see ``min_retreat_clearance``), m."""
+    end_margin_rad: float = float(np.deg2rad(3.0))
+    """'open' and 'close' stop this short of a revolute part's range ends (never drive it into its stop), rad."""
+    end_margin_m: float = 0.02
+    """... and this short of a prismatic part's, m."""
+    pregrasp_dwell: float = 0.3
+    """Pause at the pre-grasp pose so that the servos settle before the last approach, s."""
+    effort_share_damping: float = 0.5
+    """Share of a joint's effort limit its simulated damping may take at the planned speed."""
+    effort_share_inertia: float = 0.3
+    """Share of a joint's effort limit its armature may take at the planned acceleration."""
+    gravity_effort_share: float = 0.9
+    """Share of a joint's effort limit gravity may take anywhere along the handle path (the rest tracks)."""
+    approach_scale: float = 0.6
+    """Fraction of the speed and acceleration limits used to reach the pre-grasp pose (the servos then track
+    within their effort limits, and within a centimetre)."""
+    final_approach_scale: float = 0.3
+    """Fraction of the speed and acceleration limits used from pre-grasp to grasp (a slow, precise move)."""
+    handle_speed: float = 0.3
+    """Largest speed of the handle while actuating, m/s."""
+    handle_acceleration: float = 0.3
+    """Largest acceleration of the handle along its path while actuating, m/s^2."""
+    via_distance: float = 0.25
+    """When the direct approach collides, the gripper first goes to this far out along the approach, m."""
+    retreat_step: float = 0.01
+    """The retreat is solved in steps of this length along the approach, stopping where the IK cannot follow, m."""
+    min_retreat_clearance: float = 0.01
+    """A retreat cut short is kept if it leaves the handle at least this far beyond the fingertips, m."""
+    refine_tolerance: float = 0.002
+    """A waypoint is added where the grasp point between two IK waypoints strays this far from the path, m."""
+    refine_passes: int = 3
+    """Rounds of adding such waypoints."""
+    max_base_stops: int = 3
+    """Most base stops tried (1, 2, ... until base placement succeeds)."""
+    track_position_tolerance: float = 0.005
+    """Largest IK residual accepted along the handle path, m."""
+    track_orientation_tolerance: float = float(np.deg2rad(3.0))
+    """Largest IK orientation residual accepted along the handle path, rad."""
+    gripper_time: float = 0.5
+    """Duration of opening or closing the gripper, s."""
+    grasp_settle_time: float = 0.3
+    """Pause after closing and after opening the gripper, s."""
+    release_hold_time: float = 0.8
+    """Pause holding the handle at the target before opening the gripper (the part comes to rest), s."""
+    free_range_step: float = float(np.deg2rad(0.5))
+    """Step of the scan for where a revolute part first runs into the rest of the scene ('open' and 'close'
+    stop ``end_margin`` short of it as of a joint stop), rad."""
+    free_range_step_m: float = 0.002
+    """The same step for prismatic parts, m."""
+    demo_min_step_rad: float = float(np.deg2rad(2.0))
+    """Demonstrated states closer than this to the previous kept one are dropped from the path, rad."""
+    demo_min_step_m: float = 0.01
+    """The same for prismatic parts, m."""
+    time_budget: float = 10.0
+    """Planning stops trying further grasp tilts and base stops after this long, s."""
+    footprint_radius: float = 2.5
+    """Furniture within this distance of the handle path enters base placement, m."""
+
+
+
+
+def _placement_problem(
+    robot: RobotDescription,
+    model: mujoco.MjModel,
+    joint: int,
+    geometry: RobotGeometry,
+    frames: FloatArray,
+    states: FloatArray,
+    bases: int,
+    config: PlanConfig,
+) -> PlacementProblem:
+    wrist = frames[:, :3, 3] - frames[:, :3, 2] * geometry.wrist_to_grasp
+    stretch = np.minimum((np.arange(len(states)) * bases) // len(states), bases - 1)
+    circles = geometry.base_circles + geometry.arm_circles
+    z_band = (min(c.z_band[0] for c in circles), max(c.z_band[1] for c in circles))
+    exclude = np.concatenate([bodies_geoms(model, robot_bodies(model)), part_geoms(model, joint)])
+    static = static_footprint(model, exclude, z_band, wrist[:, :2].mean(axis=0), config.footprint_radius)
+    sweeps = []
+    for b in range(bases):
+        mine = states[(stretch == b) | (stretch == b + 1)]
+        sweeps.append(part_sweep_footprint(model, joint, mine[:: max(1, len(mine) // 12)].tolist() + [mine[-1]], z_band))
+    free = tuple(motion in robot.base_motions for motion in ("x", "y", "yaw"))
+    return PlacementProblem(
+        wrist_world=wrist,
+        stretch=stretch,
+        base_free=free,  # type: ignore[arg-type]
+        base_fixed=np.zeros(3),
+        p_base_shoulder=geometry.p_base_shoulder,
+        reach=geometry.reach,
+        base_circles=geometry.base_circles,
+        arm_circles=geometry.arm_circles,
+        static=static,
+        sweep=tuple(sweeps),
+        start_part=part_sweep_footprint(model, joint, [states[0]], z_band),
+    )
+
+
+def _demo_states(task: ArticulationTask, start: float, config: PlanConfig) -> FloatArray:
+    """(N,) path states of the demonstration from ``start``: its states in order, thinned so that consecutive
+    ones differ by at least ``demo_min_step`` (the hand's pauses and jitter are not path waypoints)."""
+    step = config.demo_min_step_rad if task.joint_type == "revolute" else config.demo_min_step_m
+    kept = [start]
+    for state in task.demo_states:
+        if abs(state - kept[-1]) >= step:
+            kept.append(float(state))
+    if abs(task.demo_states[-1] - kept[-1]) > 1e-9:
+        kept[-1] = float(task.demo_states[-1])
+    if len(kept) < 2:
+        raise PlanningError(f"part '{task.part}': the demonstration does not move the part from {start:.3f} {task.unit}")
+    return np.array(kept)
+
+
+def _slowed(trajectory: Trajectory, factor: float, dt: float) -> Trajectory:
+    """The same motion ``factor`` times slower (velocities divided by it), resampled every ``dt``."""
+    t = np.arange(int(np.ceil(trajectory.duration * factor / dt)) + 1) * dt
+    tau = np.minimum(t / factor, trajectory.duration)
+    q = np.column_stack([np.interp(tau, trajectory.t, trajectory.q[:, j]) for j in range(trajectory.q.shape[1])])
+    qd = np.column_stack([np.interp(tau, trajectory.t, trajectory.qd[:, j]) for j in range(trajectory.qd.shape[1])]) / factor
+    return Trajectory(t, q, qd)
+
+
+def _concatenate(pieces: list[tuple[str, Trajectory, FloatArray, FloatArray]], dt: float) -> tuple[FloatArray, ...]:
+    """Join trajectories that meet at rest; returns t, q, qd, gripper, part_state and the segments."""
+    t_all, q_all, qd_all, g_all, s_all, segments = [], [], [], [], [], []
+    t0, index = 0.0, 0
+    for label, traj, gripper, part in pieces:
+        skip = 1 if t_all else 0  # the first sample repeats the previous piece's last one
+        n = len(traj.t) - skip
+        if n <= 0:
+            continue
+        t_all.append(t0 + traj.t[skip:])
+        q_all.append(traj.q[skip:])
+        qd_all.append(traj.qd[skip:])
+        g_all.append(gripper[skip:])
+        s_all.append(part[skip:])
+        start = max(index - 1, 0) if skip else index
+        index += n
+        segments.append((label, start, index - 1))
+        t0 = float(t_all[-1][-1])
+    t = np.round(np.round(np.concatenate(t_all) / dt) * dt, 9)
+    return t, np.vstack(q_all), np.vstack(qd_all), np.concatenate(g_all), np.concatenate(s_all), segments  # type: ignore[return-value]
+
+
+def _hold(q: FloatArray, seconds: float, dt: float) -> Trajectory:
+    n = max(1, int(round(seconds / dt)))
+    t = np.arange(n + 1) * dt
+    return Trajectory(t, np.tile(q, (n + 1, 1)), np.zeros((n + 1, len(q))))
+
+
+def _gripper_move(
+    q: FloatArray, start: float, end: float, config: PlanConfig, hold_before: float = 0.0
+) -> tuple[Trajectory, FloatArray]:
+    """The robot holding still while the gripper command waits ``hold_before``, goes from start to end
+    (ruckig, 1 DoF), then settles."""
+    span = abs(end - start)
+    v = max(span, 1e-6) / (0.6 * config.gripper_time)
+    command = point_to_point([start], [end], [v], [4.0 * v], config.retime)
+    settle = int(round(config.grasp_settle_time / config.retime.dt))
+    wait = int(round(hold_before / config.retime.dt))
+    values = np.concatenate([np.full(wait, start), command.q[:, 0], np.full(settle, end)])
+    return _hold(q, (len(values) - 1) * config.retime.dt, config.retime.dt), values
+
+
+def plan_interaction(
+    robot: RobotDescription,
+    scene_xml: str | Path,
+    task: ArticulationTask,
+    target: str | float = "open",
+    start: float | None = None,
+    config: PlanConfig = PlanConfig(),
+    model: mujoco.MjModel | None = None,
+) -> Plan:
+    """Plan a mobile manipulator opening (or closing) one articulated part of a scene.
+
+    Args:
+        robot: the robot.
+        scene_xml: MJCF scene the task is expressed in (its world frame is the task's).
+        task: the part and its joint, grasp and range (see ``task_sources``).
+        target: 'open', 'close', 'demo' or a joint state (rad or m).
+        start: the part's state when the robot arrives; default ``task.state_current``.
+        config: settings.
+        model: ``build_mujoco_model(robot, scene_xml)`` if already built.
+
+    Returns:
+        The timed plan, starting with the base at its first stop and the arm at home, gripper open.
+
+    Raises:
+        PlanningError: naming the step that failed (base placement, IK at a path state, timing).
+    """
+    clock = started = time.perf_counter()
+    cpu_started = time.process_time()
+    timings: dict[str, float] = {}
+
+    def lap(name: str) -> None:
+        nonlocal clock
+        now = time.perf_counter()
+        timings[name] = round(now - clock, 4)
+        clock = now
+
+    model = build_mujoco_model(robot, scene_xml) if model is None else model
+    lap("model")
+    joint = part_joint(model, task.part)
+    geometry = measure_robot(robot)
+    start_state = task.state_current if start is None else float(start)
+    target_state = resolve_target(task, target)
+    capped = None
+    if isinstance(target, str) and target.strip().lower() in ("open", "close"):
+        margin = config.end_margin_rad if task.joint_type == "revolute" else config.end_margin_m
+        low, high = task.state_range
+        step = config.free_range_step if task.joint_type == "revolute" else config.free_range_step_m
+        blocked = first_blocked_state(model, joint, start_state, target_state, step)
+        if blocked is not None:
+            capped = blocked
+            low, high = (max(low, blocked[0]), high) if blocked[0] < start_state else (low, min(high, blocked[0]))
+        target_state = float(np.clip(target_state, low + margin, high - margin))
+    if abs(target_state - start_state) < 1e-6:
+        raise PlanningError(f"part '{task.part}' is already at the target state {target_state:.4g} {task.unit}")
+    demo = isinstance(target, str) and target.strip().lower() == "demo"
+    if demo:
+        states = _demo_states(task, start_state, config)
+    else:
+        states = path_states(task, start_state, target_state, T_world_grasp_canonical(task))
+    lap("path")
+
+    attempts = sorted(
+        ((bases, rank) for bases in range(1, config.max_base_stops + 1) for rank in range(len(config.grasp.tilts))),
+        key=lambda attempt: attempt[0] + 0.6 * attempt[1],
+    )
+    r_max = geometry.reach * config.placement.r_max_fraction
+    candidates = grasp_candidates(robot, task, states, geometry, r_max, config.grasp)
+    if not candidates:
+        raise PlanningError(
+            f"part '{task.part}': the handle path leaves the arm's vertical reach from the shoulder "
+            f"({geometry.p_base_shoulder[2]:.2f} m high) whatever the grasp tilt"
+        )
+    errors: list[tuple[int, PlanningError]] = []
+    solution = None
+    pending = [(bases, rank) for bases, rank in attempts if rank < len(candidates)]
+    while pending and time.perf_counter() - started < config.time_budget:
+        bases, rank = pending.pop(0)
+        grasp = candidates[rank]
+        problem = _placement_problem(robot, model, joint, geometry, grasp.frames, states, bases, config)
+        try:
+            placement = place_base(problem, config.placement)
+        except PlanningError as exc:
+            errors.append((0, exc))
+            continue
+        try:
+            solution = whole_body_configurations(robot, model, joint, task, grasp, states, placement, target_state, geometry.fingertip_depth, config)
+        except GravityOverload as exc:
+            # A wrist too weak to hold the gripper level: try the grasps that point it down most first.
+            errors.append((1, exc))
+            down = {r: float(candidates[r].frames[0, 2, 2]) for r in range(len(candidates))}
+            pending.sort(key=lambda attempt: (down[attempt[1]], attempt[0]))
+            continue
+        except PlanningError as exc:
+            errors.append((1, exc))
+            continue
+        break
+    if solution is None:
+        if not errors:
+            raise PlanningError(f"part '{task.part}': planning time budget exhausted")
+        furthest = max(stage for stage, _ in errors)
+        raise [exc for stage, exc in errors if stage == furthest][-1]
+    lap("placement_ik")
+    flip, path, configs, tracked = solution["flip"], solution["path"], solution["configs"], solution["tracked"]
+    states = solution["states"]
+    grasp = solution["grasp"]
+    depth, opening, holding = grasp.depth, grasp.opening, grasp.holding
+
+    v, a = dynamic_limits(robot, model, config.effort_share_damping, config.effort_share_inertia)
+    rc = config.retime
+    moves = list(zip(configs["approach"][:-1], configs["approach"][1:]))
+    fast = config.approach_scale
+    approach = [point_to_point(q0, q1, fast * v, fast * a, rc) for q0, q1 in moves[:-1]]
+    approach.append(_hold(moves[-1][0], config.pregrasp_dwell, rc.dt))
+    slow = config.final_approach_scale
+    approach.append(point_to_point(*moves[-1], slow * v, slow * a, rc))
+    # The part state rides along as an extra path coordinate limited to the handle's speed and acceleration.
+    radius = 1.0
+    if task.joint_type == "revolute":
+        radius = max(float(np.linalg.norm(np.cross(task.axis_world, path[0, :3, 3] - task.pivot_world))), 0.05)
+    actuate = retime_path(
+        np.column_stack([configs["path"], states]),
+        np.concatenate([v, [config.handle_speed / radius]]),
+        np.concatenate([a, [config.handle_acceleration / radius]]),
+        rc,
+    )
+    if demo and task.demo_times.size and actuate.duration < float(task.demo_times[-1] - task.demo_times[0]):
+        actuate = _slowed(actuate, float(task.demo_times[-1] - task.demo_times[0]) / actuate.duration, rc.dt)
+    q_path = configs["path"]
+    retreat = point_to_point(q_path[-1], configs["retreat"], v, a, rc)
+    close_hold, close_cmd = _gripper_move(q_path[0], opening, holding, config)
+    released = release_command(robot, holding, config.grasp)
+    open_hold, open_cmd = _gripper_move(q_path[-1], holding, released, config, config.release_hold_time)
+
+    def constant(traj: Trajectory, value: float) -> FloatArray:
+        return np.full(len(traj.t), value)
+
+    pieces = [("approach", piece, constant(piece, opening), constant(piece, start_state)) for piece in approach]
+    pieces += [
+        ("grasp", close_hold, close_cmd, constant(close_hold, start_state)),
+        ("actuate", Trajectory(actuate.t, actuate.q[:, :-1], actuate.qd[:, :-1]), constant(actuate, holding), actuate.q[:, -1]),
+        ("release", open_hold, open_cmd, constant(open_hold, target_state)),
+        ("retreat", retreat, constant(retreat, released), constant(retreat, target_state)),
+    ]
+    t, q, qd, gripper, part_state, raw_segments = _concatenate(pieces, rc.dt)
+    segments = _merge_segments(raw_segments, t)
+    lap("retime")
+    placement = solution["placement"]
+
+    T_start = path[0]
+    provenance = {
+        "planner": PLANNER_VERSION,
+        "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        "robot_file": str(robot.yaml_path),
+        "robot_sha256": sha256_file(robot.yaml_path),
+        "robot_model_sha256": sha256_file(robot.model_path),
+        "scene_file": str(scene_xml),
+        "scene_sha256": sha256_file(scene_xml),
+        "task_source": task.source,
+        "task_files": {str(p): sha256_file(p) for p in task.source_files if Path(p).is_file()},
+        "target": str(target),
+        "target_blocked_at": None if capped is None else {"state": capped[0], "by": capped[1]},
+        "grasp": {
+            "depth_m": depth,
+            "flip": bool(flip),
+            "tilt_rad": grasp.tilt,
+            "opening": opening,
+            "approach_vias": len(configs["approach"]) - 3,
+            "handle_axis_world": None if task.handle_axis_world is None else np.round(task.handle_axis_world, 6).tolist(),
+            "approach_world": np.round(task.approach_world, 6).tolist(),
+        },
+        "base_stops": len(placement.poses),
+        "placement_clearance_m": round(placement.clearance, 4),
+        "ik_max_position_error_m": float(np.max(tracked.position_error)),
+        "ik_max_orientation_error_rad": float(np.max(tracked.orientation_error)),
+        "timings_s": timings,
+        "plan_time_s": round(sum(timings.values()), 4),
+        "plan_cpu_time_s": round(time.process_time() - cpu_started, 4),
+        "config": asdict(config),
+    }
+    return Plan(
+        robot_name=robot.name,
+        joint_names=robot.joint_names,
+        gripper_joints=robot.gripper.joints,
+        gripper_open=robot.gripper.open,
+        gripper_closed=robot.gripper.closed,
+        grasp_command=holding,
+        t=t,
+        q=q,
+        qd=qd,
+        gripper_command=gripper,
+        part_state=part_state,
+        segments=segments,
+        part=task.part,
+        joint_type=task.joint_type,
+        axis_world=task.axis_world,
+        pivot_world=task.pivot_world,
+        state_range=task.state_range,
+        start_state=start_state,
+        target_state=target_state,
+        T_world_grasp_start=T_start,
+        p_world_grasp_target=path[-1, :3, 3] + depth * path[-1, :3, 2],
+        grasp_free_axis=grasp_free_axis(task),
+        base_poses=placement.poses,
+        provenance=provenance,
+    )
+
+
+def plan_scene(
+    robot_path: str | Path,
+    scene: str | Path,
+    part: str | None = None,
+    target: str | float = "open",
+    start: float | None = None,
+    config: PlanConfig = PlanConfig(),
+) -> Plan:
+    """Load a robot and a scene (MJCF file, gt/ or capture folder, or twin folder) and plan one interaction.
+
+    Raises:
+        PlanningError: see :func:`plan_interaction`; also an unknown robot, scene or part.
+    """
+    robot = load_robot(robot_path)
+    source = locate_scene(scene)
+    model = build_mujoco_model(robot, source.scene_xml)
+    task = load_task(source, part, model)
+    return plan_interaction(robot, source.scene_xml, task, target, start, config, model=model)
+
+
+def _merge_segments(raw: list[tuple[str, int, int]], t: FloatArray) -> tuple[Segment, ...]:
+    merged: list[list] = []
+    for label, start, end in raw:
+        if merged and merged[-1][0] == label:
+            merged[-1][2] = end
+        else:
+            merged.append([label, start, end])
+    return tuple(Segment(label, start, end, float(t[start]), float(t[end])) for label, start, end in merged)
+
+
+__all__ = ["PLANNER_VERSION", "PlanConfig", "plan_interaction", "plan_scene"]
+

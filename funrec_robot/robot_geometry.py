@@ -1,0 +1,118 @@
+"""Facts about a robot's body that base placement and grasping need, measured on its MuJoCo model at home.
+
+Shoulder and wrist centres, the reach between them, circles covering the robot's floor footprint (base and
+home-pose arm, each with its height band) and how far the fingers reach past the grasp frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from funrec.typed import FloatArray
+from funrec_robot.robot import RobotDescription
+from funrec_robot.scene import box_corners, geom_boxes, subtree_bodies
+from funrec_robot.sim_model import build_mujoco_model, reset_to_home, robot_indices
+
+FOOTPRINT_CELL_M = 0.3
+"""Largest side of the cells whose circumscribed circles cover a footprint rectangle, m."""
+
+
+@dataclass(frozen=True)
+class Circle:
+    """A disc on the floor, in the base frame, that covers part of the robot between two heights."""
+
+    centre_base: FloatArray
+    """(2,) centre, base frame, m."""
+    radius: float
+    """Radius, m."""
+    z_band: tuple[float, float]
+    """(low, high) heights of what the disc covers, m above the base frame."""
+
+
+@dataclass(frozen=True)
+class RobotGeometry:
+    """A robot's body as base placement sees it, from its model at the home pose with the base at zero."""
+
+    p_base_shoulder: FloatArray
+    """(3,) centre of the shoulder (anchor of the second arm joint), base frame, m."""
+    wrist_to_grasp: float
+    """Distance from the wrist centre (anchor of the second-last arm joint) to the grasp frame, m."""
+    reach: float
+    """Length of the chain from shoulder to wrist at full stretch (sum of anchor-to-anchor distances), m."""
+    base_circles: tuple[Circle, ...]
+    """Discs covering the robot without its arm (base, torso, head)."""
+    arm_circles: tuple[Circle, ...]
+    """Discs covering the arm at its home pose."""
+    fingertip_depth: float
+    """How far the finger geoms reach past the grasp frame along its z (the approach), m."""
+    finger_depth_range: tuple[float, float]
+    """(near, far) extent of the finger pads along the grasp z, relative to the grasp frame, m."""
+    finger_corners: FloatArray
+    """(M, 3) corners of the finger geoms' boxes in the grasp frame with the gripper open, m."""
+
+
+def _circles(corners: FloatArray, z_low: float, z_high: float) -> tuple[Circle, ...]:
+    """Circumscribed circles of a grid of cells covering the rectangle around (N, 2) points."""
+    low, high = corners.min(axis=0), corners.max(axis=0)
+    counts = np.maximum(np.ceil((high - low) / FOOTPRINT_CELL_M), 1).astype(int)
+    size = (high - low) / counts
+    radius = float(np.linalg.norm(size) / 2.0)
+    out = []
+    for i in range(counts[0]):
+        for j in range(counts[1]):
+            centre = low + size * (np.array([i, j]) + 0.5)
+            out.append(Circle(centre_base=centre, radius=radius, z_band=(z_low, z_high)))
+    return tuple(out)
+
+
+def _corners(model: mujoco.MjModel, data: mujoco.MjData, geoms: np.ndarray) -> FloatArray:
+    return box_corners(*geom_boxes(model, data, geoms)).reshape(-1, 3)
+
+
+def measure_robot(robot: RobotDescription) -> RobotGeometry:
+    """Measure a robot on its own MuJoCo model at home, base joints at zero, finger joints at the open command."""
+    model = build_mujoco_model(robot)
+    data = mujoco.MjData(model)
+    reset_to_home(robot, model, data)
+    indices = robot_indices(robot, model)
+    data.qpos[indices.qpos[: len(robot.base_joints)]] = 0.0
+    # Finger slides at the open command (a position servo's command is the finger position).
+    data.qpos[indices.gripper_qpos] = robot.gripper.open
+    mujoco.mj_kinematics(model, data)
+    arm = [model.joint(f"robot/{name}").id for name in robot.arm_joints]
+    anchors = data.xanchor[arm]
+    shoulder, wrist = anchors[1], anchors[-2]
+    p_grasp = data.site_xpos[indices.grasp_site]
+    R_world_grasp = data.site_xmat[indices.grasp_site].reshape(3, 3)
+    reach = float(np.sum(np.linalg.norm(np.diff(anchors[1:-1], axis=0), axis=1)))
+
+    collides = (model.geom_contype != 0) | (model.geom_conaffinity != 0)
+    arm_bodies = subtree_bodies(model, int(model.jnt_bodyid[arm[0]]))
+    all_geoms = np.flatnonzero(collides & np.isin(model.geom_bodyid, indices.bodies))
+    arm_geoms = all_geoms[np.isin(model.geom_bodyid[all_geoms], arm_bodies)]
+    body_geoms = np.setdiff1d(all_geoms, arm_geoms)
+    finger_bodies = np.unique(np.concatenate([
+        subtree_bodies(model, int(model.jnt_bodyid[model.joint(f"robot/{name}").id])) for name in robot.gripper.joints
+    ]))
+    finger_geoms = all_geoms[np.isin(model.geom_bodyid[all_geoms], finger_bodies)]
+
+    body_corners = _corners(model, data, body_geoms)
+    arm_corners = _corners(model, data, arm_geoms)
+    finger_grasp = (_corners(model, data, finger_geoms) - p_grasp) @ R_world_grasp
+    finger_z = finger_grasp[:, 2]
+    return RobotGeometry(
+        p_base_shoulder=shoulder.copy(),
+        wrist_to_grasp=float(np.linalg.norm(p_grasp - wrist)),
+        reach=reach,
+        base_circles=_circles(body_corners[:, :2], float(body_corners[:, 2].min()), float(body_corners[:, 2].max())),
+        arm_circles=_circles(arm_corners[:, :2], float(arm_corners[:, 2].min()), float(arm_corners[:, 2].max())),
+        fingertip_depth=float(finger_z.max()),
+        finger_depth_range=(float(finger_z.min()), float(finger_z.max())),
+        finger_corners=finger_grasp,
+    )
+
+
+__all__ = ["Circle", "RobotGeometry", "measure_robot"]

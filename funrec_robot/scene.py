@@ -1,0 +1,372 @@
+"""What the planner needs to know about a MuJoCo scene: part joints and geoms, the front and handle of a part,
+and floor footprints (convex polygons) of the furniture and of a part's swept volume.
+
+All functions read a compiled model that holds the scene (alone or with a robot from ``build_mujoco_model``);
+geometry is taken from each geom's bounding box in its own frame (``geom_aabb``), which for the boxes,
+panels and bars of FunREC scenes is the geom itself.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+import numpy.typing as npt
+from scipy.spatial import ConvexHull
+
+from funrec.errors import PlanningError
+from funrec.typed import FloatArray, IntArray
+from funrec_robot.errors import format_names
+from funrec_robot.sim_model import ROBOT_PREFIX
+
+FLOOR_TOP_M = 0.02
+"""Geoms whose top is below this height are the floor: never obstacles for the base, m."""
+HANDLE_CONTAINS_M = 0.005
+"""A geom is part of the handle if the contact point lies within this distance of its box, m."""
+HANDLE_ELONGATION = 2.0
+"""A handle whose longest side (across the approach) is at least this many times its next is a bar."""
+PANEL_THICKNESS_M = 0.05
+"""Largest half-thickness of a geom taken as the part's front panel, m."""
+PANEL_MIN_SIDE_M = 0.03
+"""Smallest half-size of a front panel across its thickness, m (a shallow drawer front is about 0.07)."""
+BEHIND_REACH_M = 0.045
+"""Geoms of the part behind the handle within this lateral distance of the contact point can meet the
+fingertips (a finger's reach across the approach), m."""
+PANEL_MARGIN_M = 0.01
+"""How far outside a panel's face the contact point may project and still face that panel, m."""
+POLYGON_INFLATE_M = 0.001
+"""Every footprint box is grown by this much so that a flat geom still has an area, m."""
+
+
+@dataclass(frozen=True)
+class Polygon:
+    """A convex polygon on the floor (z = 0 plane of the world frame)."""
+
+    name: str
+    """Where it comes from: geom name, or ``<geom>@sweep`` for a part's swept volume."""
+    vertices: FloatArray
+    """(M, 2) vertices, counter-clockwise, m."""
+    A: FloatArray
+    """(M, 2) outward unit normals of the edges: inside is ``A @ p <= b``."""
+    b: FloatArray
+    """(M,) edge offsets, m."""
+    z_band: tuple[float, float] = (-np.inf, np.inf)
+    """(low, high) heights of the solid whose footprint this is, m."""
+
+    def lower_distance(self, p_xy: npt.ArrayLike) -> FloatArray:
+        """(N,) max over edges of ``A p - b``: negative inside, and outside a lower bound of the distance."""
+        p = np.atleast_2d(np.asarray(p_xy, dtype=np.float64))
+        return np.max(p @ self.A.T - self.b, axis=1)
+
+
+@dataclass(frozen=True)
+class PartFront:
+    """The front of an articulated part around its handle, at the part's canonical state."""
+
+    normal_world: FloatArray
+    """(3,) unit outward normal of the front panel (pointing from the panel towards the handle)."""
+    standoff: float
+    """Distance from the contact point, against the normal, to the nearest geom of the part behind the handle
+    (the panel's face, or a backplate), m."""
+    handle_axis_world: FloatArray | None
+    """(3,) long axis of the handle bar across the normal; None for a knob or an unidentified handle."""
+    panel_geom: str
+    """Name of the geom taken as the front panel."""
+    handle_geoms: tuple[str, ...]
+    """Names of the geoms taken as the handle."""
+    handle_width: float | None
+    """Thickness of the handle across its long axis and the normal (a bar), or its largest size (a knob), m;
+    None if no handle geom was identified."""
+    handle_depth: float | None
+    """Extent of the handle along the normal, m; None if no handle geom was identified."""
+
+
+def _name(model: mujoco.MjModel, kind: mujoco.mjtObj, index: int) -> str:
+    return mujoco.mj_id2name(model, kind, index) or f"#{index}"
+
+
+def part_joint(model: mujoco.MjModel, part: str) -> int:
+    """Id of the scene joint named ``part``.
+
+    Raises:
+        PlanningError: no such joint; lists the scene's hinge and slide joints.
+    """
+    joint = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, part)
+    if joint < 0:
+        valid = [
+            _name(model, mujoco.mjtObj.mjOBJ_JOINT, j)
+            for j in range(model.njnt)
+            if not _name(model, mujoco.mjtObj.mjOBJ_JOINT, j).startswith(ROBOT_PREFIX)
+            and model.jnt_type[j] in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE)
+        ]
+        raise PlanningError(f"scene has no joint '{part}'; articulated joints: {format_names(valid)}")
+    return joint
+
+
+def subtree_bodies(model: mujoco.MjModel, body: int) -> IntArray:
+    """(k,) ids of ``body`` and all its descendants."""
+    inside = np.zeros(model.nbody, dtype=bool)
+    inside[body] = True
+    for b in range(body + 1, model.nbody):  # MuJoCo numbers children after their parents
+        inside[b] = inside[model.body_parentid[b]]
+    return np.flatnonzero(inside)
+
+
+def bodies_geoms(model: mujoco.MjModel, bodies: npt.ArrayLike) -> IntArray:
+    """(k,) ids of the geoms attached to any of ``bodies``."""
+    return np.flatnonzero(np.isin(model.geom_bodyid, np.asarray(bodies)))
+
+
+def part_geoms(model: mujoco.MjModel, joint: int) -> IntArray:
+    """(k,) geoms that move with a scene joint (the subtree of its body)."""
+    return bodies_geoms(model, subtree_bodies(model, int(model.jnt_bodyid[joint])))
+
+
+def robot_bodies(model: mujoco.MjModel) -> IntArray:
+    """(k,) bodies whose name carries the robot prefix of ``build_mujoco_model``."""
+    return np.array(
+        [b for b in range(model.nbody) if _name(model, mujoco.mjtObj.mjOBJ_BODY, b).startswith(ROBOT_PREFIX)],
+        dtype=np.int64,
+    )
+
+
+def geom_boxes(model: mujoco.MjModel, data: mujoco.MjData, geoms: npt.ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Oriented boxes of geoms at the pose in ``data`` (after forward kinematics).
+
+    Returns:
+        centre (k, 3) world, R (k, 3, 3) world-from-box rotations, half (k, 3) half sizes, m.
+    """
+    geoms = np.asarray(geoms, dtype=np.int64)
+    R = data.geom_xmat[geoms].reshape(-1, 3, 3)
+    aabb = model.geom_aabb[geoms]
+    centre = data.geom_xpos[geoms] + np.einsum("kij,kj->ki", R, aabb[:, :3])
+    return centre, R, aabb[:, 3:].copy()
+
+
+def box_corners(centre: FloatArray, R: FloatArray, half: FloatArray) -> FloatArray:
+    """(k, 8, 3) corners of the oriented boxes of :func:`geom_boxes`."""
+    signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=np.float64)
+    return centre[:, None, :] + np.einsum("kij,kmj->kmi", R, signs[None] * half[:, None, :])
+
+
+def polygon_from_points(
+    name: str, points_xy: npt.ArrayLike, z_band: tuple[float, float] = (-np.inf, np.inf)
+) -> Polygon:
+    """Convex hull of (N, 2) floor points as a :class:`Polygon` of a solid between the heights ``z_band``."""
+    hull = ConvexHull(np.asarray(points_xy, dtype=np.float64))
+    return Polygon(
+        name=name,
+        vertices=hull.points[hull.vertices],
+        A=hull.equations[:, :2].copy(),
+        b=-hull.equations[:, 2].copy(),
+        z_band=(float(z_band[0]), float(z_band[1])),
+    )
+
+
+def _footprints(
+    corners: FloatArray, names: list[str], z_band: tuple[float, float]
+) -> list[Polygon]:
+    out = []
+    for corner, name in zip(corners, names):
+        z_min, z_max = corner[:, 2].min(), corner[:, 2].max()
+        if z_max < max(z_band[0], FLOOR_TOP_M) or z_min > z_band[1]:
+            continue
+        out.append(polygon_from_points(name, corner[:, :2], (z_min, z_max)))
+    return out
+
+
+def _posed_data(model: mujoco.MjModel, qpos: npt.ArrayLike | None = None) -> mujoco.MjData:
+    data = mujoco.MjData(model)
+    if qpos is not None:
+        data.qpos[:] = qpos
+    mujoco.mj_kinematics(model, data)
+    return data
+
+
+def static_footprint(
+    model: mujoco.MjModel,
+    exclude_geoms: npt.ArrayLike,
+    z_band: tuple[float, float],
+    centre_xy: npt.ArrayLike,
+    radius: float,
+    qpos: npt.ArrayLike | None = None,
+) -> tuple[Polygon, ...]:
+    """Floor footprints of the scene's geoms near a point.
+
+    Args:
+        model: compiled scene (with or without a robot).
+        exclude_geoms: geoms to leave out (the robot's, the moving part's).
+        z_band: (low, high) heights; only geoms overlapping this band are kept (the robot's body height), m.
+        centre_xy: (2,) centre of the region of interest, world, m.
+        radius: geoms whose box lies entirely farther than this from the centre are dropped, m.
+        qpos: model configuration to read the scene at (default the reference configuration).
+
+    Returns:
+        One convex polygon per kept geom (its box's projection).
+    """
+    data = _posed_data(model, qpos)
+    keep = np.setdiff1d(np.arange(model.ngeom), np.asarray(exclude_geoms, dtype=np.int64))
+    keep = keep[model.geom_type[keep] != mujoco.mjtGeom.mjGEOM_PLANE]
+    centre, R, half = geom_boxes(model, data, keep)
+    reach = np.linalg.norm(half, axis=1)
+    near = np.linalg.norm(centre[:, :2] - np.asarray(centre_xy), axis=1) - reach < radius
+    keep, centre, R, half = keep[near], centre[near], R[near], half[near]
+    corners = box_corners(centre, R, half + POLYGON_INFLATE_M)
+    names = [_name(model, mujoco.mjtObj.mjOBJ_GEOM, g) for g in keep]
+    return tuple(_footprints(corners, names, z_band))
+
+
+def part_sweep_footprint(
+    model: mujoco.MjModel, joint: int, states: npt.ArrayLike, z_band: tuple[float, float]
+) -> tuple[Polygon, ...]:
+    """Floor footprints of the volume a part sweeps between states: per geom, the hull of its boxes at the states.
+
+    A revolute leaf sweeps a sector (convex for less than half a turn); the hull of its sampled boxes misses
+    only the sagitta between samples, a few mm for the 4-degree spacing of the planner's paths.
+    """
+    geoms = part_geoms(model, joint)
+    qadr = model.jnt_qposadr[joint]
+    data = mujoco.MjData(model)
+    per_geom: list[list[FloatArray]] = [[] for _ in geoms]
+    bands = np.tile([np.inf, -np.inf], (len(geoms), 1))
+    for state in np.atleast_1d(np.asarray(states, dtype=np.float64)):
+        data.qpos[:] = model.qpos0
+        data.qpos[qadr] = state
+        mujoco.mj_kinematics(model, data)
+        centre, R, half = geom_boxes(model, data, geoms)
+        corners = box_corners(centre, R, half + POLYGON_INFLATE_M)
+        for k, corner in enumerate(corners):
+            if corner[:, 2].max() < max(z_band[0], FLOOR_TOP_M) or corner[:, 2].min() > z_band[1]:
+                continue
+            per_geom[k].append(corner[:, :2])
+            bands[k] = min(bands[k, 0], corner[:, 2].min()), max(bands[k, 1], corner[:, 2].max())
+    out = []
+    for g, pieces, band in zip(geoms, per_geom, bands):
+        if pieces:
+            name = f"{_name(model, mujoco.mjtObj.mjOBJ_GEOM, g)}@sweep"
+            out.append(polygon_from_points(name, np.vstack(pieces), (band[0], band[1])))
+    return tuple(out)
+
+
+def part_front(model: mujoco.MjModel, joint: int, p_world_contact: npt.ArrayLike) -> PartFront:
+    """Outward normal, handle standoff and handle axis of a part, from its geoms at the canonical state.
+
+    The front panel is the thin geom of the part (half-thickness below ``PANEL_THICKNESS_M``) whose face the
+    contact point projects onto and lies nearest in front of; the handle is the geoms whose boxes contain
+    the contact point.
+
+    Raises:
+        PlanningError: no panel of the part faces the contact point.
+    """
+    p = np.asarray(p_world_contact, dtype=np.float64)
+    geoms = part_geoms(model, joint)
+    qpos = model.qpos0.copy()
+    data = _posed_data(model, qpos)
+    centre, R, half = geom_boxes(model, data, geoms)
+    p_box = np.einsum("kji,kj->ki", R, p - centre)  # R^T (p - c): contact point in each box's frame
+    best: tuple[float, int, FloatArray] | None = None
+    for k in range(len(geoms)):
+        thin = int(np.argmin(half[k]))
+        others = [a for a in range(3) if a != thin]
+        if half[k, thin] > PANEL_THICKNESS_M or np.min(half[k, others]) < max(PANEL_MIN_SIDE_M, 3.0 * half[k, thin]):
+            continue
+        if np.any(np.abs(p_box[k, others]) > half[k, others] + PANEL_MARGIN_M):
+            continue
+        gap = abs(p_box[k, thin]) - half[k, thin]
+        if gap <= 0.0:
+            continue
+        if best is None or gap < best[0]:
+            best = (gap, k, np.sign(p_box[k, thin]) * R[k][:, thin])
+    if best is None:
+        raise PlanningError(
+            f"part '{_name(model, mujoco.mjtObj.mjOBJ_JOINT, joint)}': no front panel of the part faces the "
+            f"contact point {np.round(p, 3).tolist()}; geoms: "
+            f"{format_names(_name(model, mujoco.mjtObj.mjOBJ_GEOM, g) for g in geoms)}"
+        )
+    _, panel, normal = best
+    outside = np.maximum(np.abs(p_box) - half, 0.0)
+    in_handle = np.linalg.norm(outside, axis=1) <= HANDLE_CONTAINS_M
+    in_handle[panel] = False
+    handle_axis, width, depth = None, None, None
+    if np.any(in_handle):
+        k = int(np.flatnonzero(in_handle)[np.argmin(np.prod(half[in_handle], axis=1))])  # the smallest: the bar
+        across = [(half[k, a], R[k][:, a]) for a in range(3) if abs(float(R[k][:, a] @ normal)) < 0.7]
+        across.sort(key=lambda item: -item[0])
+        width = 2.0 * float(np.max(half[k]))
+        depth = 2.0 * float(np.sum(np.abs(R[k].T @ normal) * half[k]))
+        if len(across) == 2 and across[0][0] >= HANDLE_ELONGATION * across[1][0]:
+            axis = across[0][1] - normal * float(across[0][1] @ normal)
+            handle_axis = axis / np.linalg.norm(axis)
+            width = 2.0 * float(across[1][0])
+    # The standoff is the gap to whatever of the part lies behind the handle within a gripper's reach
+    # across the approach (the front panel, a backplate, the posts of a bar); a geom no wider than the
+    # handle (a knob's stem) passes between the fingers.
+    handle_size = 0.0 if width is None else width / 2.0
+    u1 = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u1 /= np.linalg.norm(u1)
+    lateral_axes = np.stack([u1, np.cross(normal, u1)])
+    standoff = np.inf
+    for k in np.flatnonzero(~in_handle):
+        corners = box_corners(centre[k : k + 1], R[k : k + 1], half[k : k + 1])[0] - p
+        gap = -float((corners @ normal).max())  # the handle is in front (+normal) of what lies behind it
+        if gap < 0.0:
+            continue
+        lateral = corners @ lateral_axes.T
+        lo, hi = lateral.min(axis=0), lateral.max(axis=0)
+        if np.max(hi - lo) / 2.0 <= handle_size:
+            continue
+        if np.all(lo <= BEHIND_REACH_M) and np.all(hi >= -BEHIND_REACH_M):
+            standoff = min(standoff, gap)
+    return PartFront(
+        normal_world=normal,
+        standoff=float(standoff),
+        handle_axis_world=handle_axis,
+        panel_geom=_name(model, mujoco.mjtObj.mjOBJ_GEOM, geoms[panel]),
+        handle_geoms=tuple(_name(model, mujoco.mjtObj.mjOBJ_GEOM, g) for g in geoms[in_handle]),
+        handle_width=width,
+        handle_depth=depth,
+    )
+
+
+def geoms_near(
+    model: mujoco.MjModel, data: mujoco.MjData, geoms: npt.ArrayLike, points: npt.ArrayLike, radius: float
+) -> IntArray:
+    """(k,) the geoms whose boxes come within ``radius`` of any of the (N, 3) world points."""
+    geoms = np.asarray(geoms, dtype=np.int64)
+    centre, R, half = geom_boxes(model, data, geoms)
+    points = np.atleast_2d(np.asarray(points, dtype=np.float64))
+    local = np.einsum("kji,knj->kni", R, points[None, :, :] - centre[:, None, :])
+    outside = np.maximum(np.abs(local) - half[:, None, :], 0.0)
+    distance = np.linalg.norm(outside, axis=2).min(axis=1)
+    return geoms[distance <= radius]
+
+
+def floor_geoms(model: mujoco.MjModel, geoms: npt.ArrayLike) -> IntArray:
+    """(k,) those of ``geoms`` that lie below ``FLOOR_TOP_M`` at the reference configuration (the floor)."""
+    geoms = np.asarray(geoms, dtype=np.int64)
+    data = _posed_data(model)
+    centre, R, half = geom_boxes(model, data, geoms)
+    top = centre[:, 2] + np.abs(R[:, 2, :] * half).sum(axis=1)
+    plane = model.geom_type[geoms] == mujoco.mjtGeom.mjGEOM_PLANE
+    return geoms[(top <= FLOOR_TOP_M) | plane]
+
+
+__all__ = [
+    "FLOOR_TOP_M",
+    "PartFront",
+    "Polygon",
+    "bodies_geoms",
+    "box_corners",
+    "floor_geoms",
+    "geom_boxes",
+    "geoms_near",
+    "part_front",
+    "part_geoms",
+    "part_joint",
+    "part_sweep_footprint",
+    "polygon_from_points",
+    "robot_bodies",
+    "static_footprint",
+    "subtree_bodies",
+]

@@ -1,0 +1,370 @@
+"""Base placement by nonlinear optimisation in casadi (IPOPT): where the mobile base stands while the arm
+moves the handle.
+
+One or more base poses (x, y, yaw) each serve a stretch of the handle path: every wrist target of a stretch
+stays within [r_min, r_max] of the shoulder (cost: distance from a well-conditioned mid-range, plus facing
+the targets), the robot's floor discs stay clear of the furniture footprints and of the volume the part
+sweeps meanwhile, and consecutive poses stay close. Pinocchio's casadi bindings are not in the PyPI wheel,
+so the forward kinematics of the base (a planar rigid motion of the shoulder and the discs) is written here.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+import numpy.typing as npt
+
+from funrec.errors import PlanningError
+from funrec.typed import FloatArray, IntArray
+from funrec_robot.robot_geometry import Circle
+from funrec_robot.scene import Polygon
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class PlacementConfig:
+    """Settings of base placement."""
+
+    r_min_fraction: float = 0.3
+    """Nearest a wrist target may come to the shoulder, as a fraction of the arm's reach."""
+    r_max_fraction: float = 0.95
+    """Farthest a wrist target may be from the shoulder, as a fraction of the arm's reach."""
+    r_mid_fraction: float = 0.62
+    """Preferred shoulder-to-wrist distance (well-conditioned, elbow bent), fraction of the reach."""
+    clearance: float = 0.06
+    """Gap kept between the robot's floor discs and any footprint, m."""
+    sharpness: float = 60.0
+    """Sharpness of the smooth maximum over a polygon's edges, 1/m; the constraint subtracts log(edges)/sharpness
+    so that it stays conservative."""
+    facing_weight: float = 0.3
+    """Weight of the facing cost (1 - cos of the angle between the base's x and each wrist target)."""
+    move_weight: float = 2.0
+    """Weight of the squared distance between consecutive base poses, 1/m^2."""
+    max_targets: int = 24
+    """Wrist targets per base pose used in the optimisation (evenly subsampled), for speed."""
+    grid_radii: tuple[float, ...] = (0.3, 0.45, 0.6, 0.75, 0.9, 1.05)
+    """Distances of the initial-guess grid from the targets' centroid, m."""
+    grid_angles: int = 24
+    """Directions of the initial-guess grid around the targets' centroid."""
+    grid_yaw_offsets: tuple[float, ...] = (0.0, -0.6, 0.6)
+    """Yaws tried at each grid point relative to facing the centroid, rad."""
+    max_iterations: int = 80
+    """IPOPT iteration limit."""
+    violation_tolerance: float = 1e-3
+    """Largest summed constraint violation accepted (m^2 for reach, m for clearance: about a millimetre)."""
+
+
+@dataclass(frozen=True)
+class PlacementProblem:
+    """Base placement for one handle path (all in the world frame of the scene, z up)."""
+
+    wrist_world: FloatArray
+    """(K, 3) wrist-centre targets along the path (grasp point minus approach times the wrist-to-grasp length), m."""
+    stretch: IntArray
+    """(K,) index of the base pose that serves each target, 0..B-1, non-decreasing."""
+    base_free: tuple[bool, bool, bool]
+    """Which of x, y, yaw the robot can choose."""
+    base_fixed: FloatArray
+    """(3,) values of the coordinates it cannot choose (x, y in m, yaw in rad)."""
+    p_base_shoulder: FloatArray
+    """(3,) shoulder centre in the base frame, m."""
+    reach: float
+    """Shoulder-to-wrist reach at full stretch, m."""
+    base_circles: tuple[Circle, ...]
+    """Discs covering the robot body (kept clear at every base pose)."""
+    arm_circles: tuple[Circle, ...]
+    """Discs covering the arm at home (kept clear at the first base pose, where the robot arrives)."""
+    static: tuple[Polygon, ...]
+    """Footprints of the furniture (everything but the moving part)."""
+    sweep: tuple[tuple[Polygon, ...], ...]
+    """Per base pose, footprints of the moving part over the states of its stretch and of the next one."""
+    start_part: tuple[Polygon, ...]
+    """Footprints of the moving part at the start state (for the arm at home)."""
+
+    @property
+    def bases(self) -> int:
+        return int(self.stretch.max()) + 1
+
+
+@dataclass(frozen=True)
+class BasePlacement:
+    """Result of :func:`place_base`."""
+
+    poses: FloatArray
+    """(B, 3) base poses x, y (m), yaw (rad) in the world frame."""
+    cost: float
+    """Final cost."""
+    clearance: float
+    """Smallest gap between a robot disc and a footprint (exact polygon distance, lower bound), m."""
+    distances: FloatArray
+    """(K,) shoulder-to-wrist distance of every target from its base pose, m."""
+
+
+def _overlap(a: tuple[float, float], b: tuple[float, float]) -> bool:
+    return a[0] < b[1] and b[0] < a[1]
+
+
+SOFT_CLIP_M = (-2.0, 0.5)
+"""Edge distances are clipped to this interval before the smooth maximum (keeps exp finite). Clipping from
+above only lowers the bound; from below it matters only 2 m deep inside a footprint, where the constraint is
+violated anyway."""
+
+
+@dataclass(frozen=True)
+class _PolygonStack:
+    """All edges of several polygons, for one matrix expression of their soft distances."""
+
+    A: FloatArray  # (E, 2)
+    b: FloatArray  # (E,)
+    S: ca.DM  # (P, E) sparse 0/1: which edges belong to which polygon
+    log_edges: FloatArray  # (P,)
+
+    @staticmethod
+    def of(polygons: tuple[Polygon, ...]) -> _PolygonStack | None:
+        if not polygons:
+            return None
+        counts = [p.A.shape[0] for p in polygons]
+        rows = np.repeat(np.arange(len(polygons)), counts)
+        S = ca.DM(ca.Sparsity.triplet(len(polygons), len(rows), rows.tolist(), list(range(len(rows)))), 1.0)
+        return _PolygonStack(
+            A=np.vstack([p.A for p in polygons]),
+            b=np.concatenate([p.b for p in polygons]),
+            S=S,
+            log_edges=np.log(np.array(counts, dtype=np.float64)),
+        )
+
+
+def _soft_distances(stack: _PolygonStack, centres: ca.MX, sharpness: float) -> ca.MX:
+    """(P, C) smooth lower bounds of the distances from C points (2, C) to P convex polygons."""
+    d = ca.mtimes(ca.DM(stack.A), centres) - ca.repmat(ca.DM(stack.b), 1, centres.shape[1])
+    d = ca.fmin(ca.fmax(d, SOFT_CLIP_M[0]), SOFT_CLIP_M[1])
+    lse = ca.log(ca.mtimes(stack.S, ca.exp(sharpness * d))) / sharpness
+    return lse - ca.repmat(ca.DM(stack.log_edges), 1, centres.shape[1]) / sharpness
+
+
+def _rotation(yaw: ca.MX) -> ca.MX:
+    c, s = ca.cos(yaw), ca.sin(yaw)
+    return ca.vertcat(ca.horzcat(c, -s), ca.horzcat(s, c))
+
+
+class _Terms:
+    """Symbolic costs and constraints of the placement."""
+
+    def __init__(self) -> None:
+        self.cost: ca.MX = ca.MX(0)
+        self.g: list[ca.MX] = []
+        self.lbg: list[FloatArray] = []
+        self.ubg: list[FloatArray] = []
+
+    def add(self, g: ca.MX, low: npt.ArrayLike, high: npt.ArrayLike) -> None:
+        n = g.numel()
+        self.g.append(ca.vec(g))
+        self.lbg.append(np.broadcast_to(np.asarray(low, dtype=np.float64), (n,)).ravel())
+        self.ubg.append(np.broadcast_to(np.asarray(high, dtype=np.float64), (n,)).ravel())
+
+    def extend(self, other: _Terms) -> None:
+        self.cost += other.cost
+        self.g += other.g
+        self.lbg += other.lbg
+        self.ubg += other.ubg
+
+    def bounds(self) -> tuple[FloatArray, FloatArray]:
+        return np.concatenate(self.lbg), np.concatenate(self.ubg)
+
+
+def _relevant(polygons: tuple[Polygon, ...], circles: tuple[Circle, ...], region: FloatArray, radius: float) -> tuple[Polygon, ...]:
+    """The polygons whose height overlaps the discs' and that come within ``radius`` of a region point."""
+    out = []
+    for polygon in polygons:
+        if not any(_overlap(c.z_band, polygon.z_band) for c in circles):
+            continue
+        if float(np.min(polygon.lower_distance(region))) > radius:
+            continue
+        out.append(polygon)
+    return tuple(out)
+
+
+def _clearance_terms(
+    terms: _Terms, pose: ca.MX, circles: tuple[Circle, ...], polygons: tuple[Polygon, ...], config: PlacementConfig
+) -> None:
+    if not circles or not polygons:
+        return
+    for band in sorted({c.z_band for c in circles}):
+        group = [c for c in circles if c.z_band == band]
+        stack = _PolygonStack.of(tuple(p for p in polygons if _overlap(band, p.z_band)))
+        if stack is None:
+            continue
+        centres = ca.repmat(pose[:2], 1, len(group)) + ca.mtimes(_rotation(pose[2]), ca.DM(np.array([c.centre_base for c in group]).T))
+        radii = np.array([c.radius for c in group])
+        soft = _soft_distances(stack, centres, config.sharpness)
+        low = np.tile(radii + config.clearance, (stack.S.shape[0], 1))
+        terms.add(soft, low.ravel(order="F"), np.inf)
+
+
+def _base_terms(problem: PlacementProblem, b: int, pose: ca.MX, config: PlacementConfig) -> _Terms:
+    terms = _Terms()
+    targets = _targets(problem, b, config)
+    R = _rotation(pose[2])
+    shoulder_xy = pose[:2] + ca.mtimes(R, ca.DM(problem.p_base_shoulder[:2]))
+    r_min, r_max, r_mid = (problem.reach * f for f in (config.r_min_fraction, config.r_max_fraction, config.r_mid_fraction))
+    heading = ca.vertcat(ca.cos(pose[2]), ca.sin(pose[2]))
+    dxy = ca.DM(targets[:, :2].T) - ca.repmat(shoulder_xy, 1, len(targets))  # (2, K)
+    dz2 = ca.DM((targets[:, 2] - problem.p_base_shoulder[2]) ** 2).T  # (1, K)
+    horizontal2 = ca.sum1(dxy**2)
+    d2 = horizontal2 + dz2
+    terms.add(d2, r_min**2, r_max**2)
+    terms.cost += ca.sumsqr(ca.sqrt(d2 + 1e-9) - r_mid) / len(targets)
+    facing = ca.mtimes(heading.T, dxy) / ca.sqrt(horizontal2 + 1e-6)
+    terms.cost += config.facing_weight * ca.sum2(1.0 - facing) / len(targets)
+    region = targets[:, :2]
+    window = r_max + max(float(np.linalg.norm(c.centre_base)) + c.radius for c in problem.base_circles + problem.arm_circles)
+    window += float(np.linalg.norm(problem.p_base_shoulder[:2])) + config.clearance
+    _clearance_terms(terms, pose, problem.base_circles, _relevant(problem.static + problem.sweep[b], problem.base_circles, region, window), config)
+    if b == 0:
+        polygons = _relevant(problem.static + problem.start_part, problem.arm_circles, region, window)
+        _clearance_terms(terms, pose, problem.arm_circles, polygons, config)
+    return terms
+
+
+def _targets(problem: PlacementProblem, b: int, config: PlacementConfig) -> FloatArray:
+    mine = problem.wrist_world[problem.stretch == b]
+    if len(mine) > config.max_targets:
+        mine = mine[np.round(np.linspace(0, len(mine) - 1, config.max_targets)).astype(int)]
+    return mine
+
+
+def _grid(problem: PlacementProblem, b: int, config: PlacementConfig) -> FloatArray:
+    """(N, 3) initial guesses around the centroid of a stretch's targets."""
+    centroid = _targets(problem, b, config)[:, :2].mean(axis=0)
+    angles = np.linspace(0.0, 2 * np.pi, config.grid_angles, endpoint=False)
+    guesses = []
+    for radius in config.grid_radii:
+        for angle in angles:
+            xy = centroid + radius * np.array([np.cos(angle), np.sin(angle)])
+            for offset in config.grid_yaw_offsets:
+                yaw = angle + np.pi + offset
+                pose = np.where(problem.base_free, [xy[0], xy[1], yaw], problem.base_fixed)
+                guesses.append(pose)
+    return np.unique(np.round(np.array(guesses), 9), axis=0)
+
+
+def _violation(g: FloatArray, lbg: FloatArray, ubg: FloatArray) -> FloatArray:
+    return np.maximum(lbg[:, None] - g, 0.0).sum(axis=0) + np.maximum(g - ubg[:, None], 0.0).sum(axis=0)
+
+
+def _best_guess(problem: PlacementProblem, b: int, terms: _Terms, pose: ca.MX, config: PlacementConfig) -> FloatArray:
+    grid = _grid(problem, b, config)
+    f = ca.Function("f", [pose], [terms.cost, ca.vertcat(*terms.g)])
+    cost, g = f.map(len(grid))(grid.T)
+    lbg, ubg = terms.bounds()
+    violation = _violation(np.asarray(g), lbg, ubg)
+    score = np.asarray(cost).ravel() + 1e3 * violation
+    return grid[int(np.argmin(score))]
+
+
+def exact_clearance(
+    poses: npt.ArrayLike, problem: PlacementProblem
+) -> float:
+    """Smallest (lower-bound) gap between the robot's discs and the footprints at the given base poses, m."""
+    poses = np.atleast_2d(np.asarray(poses, dtype=np.float64))
+    gap = np.inf
+    for b, pose in enumerate(poses):
+        c, s = np.cos(pose[2]), np.sin(pose[2])
+        R = np.array([[c, -s], [s, c]])
+        pairs = [(circle, problem.static + problem.sweep[b]) for circle in problem.base_circles]
+        if b == 0:
+            pairs += [(circle, problem.static + problem.start_part) for circle in problem.arm_circles]
+        for circle, polygons in pairs:
+            centre = pose[:2] + R @ circle.centre_base
+            for polygon in polygons:
+                if _overlap(circle.z_band, polygon.z_band):
+                    gap = min(gap, float(polygon.lower_distance(centre)[0]) - circle.radius)
+    return gap
+
+
+def place_base(problem: PlacementProblem, config: PlacementConfig = PlacementConfig()) -> BasePlacement:
+    """Optimise the base poses of a handle path.
+
+    Each pose starts from the best point of a grid around its targets' centroid (the problem has one
+    basin per side of the furniture), then all poses are refined together by IPOPT.
+
+    Raises:
+        PlanningError: IPOPT finds no pose that satisfies the reach and clearance constraints; the message
+            gives the remaining violation and the closest target distances.
+    """
+    B = problem.bases
+    x = ca.MX.sym("x", 3 * B)
+    poses = [x[3 * b : 3 * b + 3] for b in range(B)]
+    terms = _Terms()
+    x0 = []
+    for b in range(B):
+        pose = ca.MX.sym(f"pose{b}", 3)
+        own = _base_terms(problem, b, pose, config)
+        x0.append(_best_guess(problem, b, own, pose, config))
+        f = ca.Function(f"base{b}", [pose], [own.cost, ca.vertcat(*own.g)])
+        cost_b, g_b = f(poses[b])
+        lbg_b, ubg_b = own.bounds()
+        terms.cost += cost_b
+        terms.add(g_b, lbg_b, ubg_b)
+    for b in range(B - 1):
+        terms.cost += config.move_weight * ca.sumsqr(poses[b + 1][:2] - poses[b][:2])
+        region = _targets(problem, b + 1, config)[:, :2]
+        polygons = _relevant(problem.static + problem.sweep[b + 1], problem.base_circles, region, 2.0)
+        _clearance_terms(terms, (poses[b] + poses[b + 1]) / 2, problem.base_circles, polygons, config)
+    free = np.tile(problem.base_free, B)
+    fixed = np.tile(problem.base_fixed, B)
+    lbx = np.where(free, -np.inf, fixed)
+    ubx = np.where(free, np.inf, fixed)
+    lbg, ubg = terms.bounds()
+    solver = ca.nlpsol(
+        "placement",
+        "ipopt",
+        {"x": x, "f": terms.cost, "g": ca.vertcat(*terms.g)},
+        {
+            "ipopt.print_level": 0,
+            "print_time": False,
+            "ipopt.sb": "yes",
+            "ipopt.max_iter": config.max_iterations,
+        },
+    )
+    result = solver(x0=np.concatenate(x0), lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+    solution = np.asarray(result["x"]).ravel()
+    g_value = np.asarray(result["g"]).ravel()
+    violation = float(_violation(g_value[:, None], lbg, ubg)[0])
+    poses_out = solution.reshape(B, 3)
+    poses_out[:, 2] = np.where(problem.base_free[2], np.angle(np.exp(1j * poses_out[:, 2])), poses_out[:, 2])
+    distances = _distances(problem, poses_out)
+    if violation > config.violation_tolerance:
+        r_min, r_max = problem.reach * config.r_min_fraction, problem.reach * config.r_max_fraction
+        raise PlanningError(
+            f"base placement: no pose of {B} base stop(s) keeps the handle path within reach and the base clear "
+            f"(constraint violation {violation:.3g}; wrist distances {distances.min():.2f}-{distances.max():.2f} m "
+            f"for a reach window [{r_min:.2f}, {r_max:.2f}] m; clearance {exact_clearance(poses_out, problem):.3f} m)"
+        )
+    log.debug("base placement %s cost %.4f", np.round(poses_out, 3).tolist(), float(result["f"]))
+    return BasePlacement(
+        poses=poses_out,
+        cost=float(result["f"]),
+        clearance=exact_clearance(poses_out, problem),
+        distances=distances,
+    )
+
+
+def _distances(problem: PlacementProblem, poses: FloatArray) -> FloatArray:
+    out = np.empty(len(problem.wrist_world))
+    for k, (w, b) in enumerate(zip(problem.wrist_world, problem.stretch)):
+        c, s = np.cos(poses[b, 2]), np.sin(poses[b, 2])
+        shoulder = np.array([
+            poses[b, 0] + c * problem.p_base_shoulder[0] - s * problem.p_base_shoulder[1],
+            poses[b, 1] + s * problem.p_base_shoulder[0] + c * problem.p_base_shoulder[1],
+            problem.p_base_shoulder[2],
+        ])
+        out[k] = np.linalg.norm(w - shoulder)
+    return out
+
+
+__all__ = ["BasePlacement", "PlacementConfig", "PlacementProblem", "exact_clearance", "place_base"]

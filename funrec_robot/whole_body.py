@@ -1,0 +1,202 @@
+"""The robot configurations of one interaction by whole-body IK: approach (with a via pose when the direct
+joint motion collides), the handle path (refined until the joint interpolation stays on it), the retreat.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import mujoco
+import numpy as np
+
+from funrec.errors import PlanningError
+from funrec.typed import FloatArray
+from funrec_robot.feasibility import GravityOverload, first_collision, gravity_overload
+from funrec_robot.grasp import FLIP, GraspCandidate, handle_frames, offset_along_approach, release_command
+from funrec_robot.ik import WholeBodyIK
+from funrec_robot.retime import point_to_point
+from funrec_robot.robot import RobotDescription
+from funrec_robot.scene import floor_geoms, geoms_near, part_geoms
+from funrec_robot.task import ArticulationTask
+from funrec_robot.trajopt import BasePlacement
+
+if TYPE_CHECKING:
+    from funrec_robot.plan import PlanConfig
+
+
+def _base_q(robot: RobotDescription, pose: FloatArray) -> FloatArray:
+    """Base joint positions (robot.base_motions order) for a base pose (x, y, yaw)."""
+    return np.array([pose[{"x": 0, "y": 1, "yaw": 2}[m]] for m in robot.base_motions])
+
+
+def posture_along(robot: RobotDescription, placement: BasePlacement, n: int) -> FloatArray:
+    """(n, nq) posture references: home arm, base interpolated between the planned stops."""
+    B = len(placement.poses)
+    position = (np.arange(n) + 0.5) * B / n - 0.5  # stop b serves samples around position b
+    posture = np.tile(robot.q_home, (n, 1))
+    base = np.array([_base_q(robot, p) for p in placement.poses])
+    nb = len(robot.base_joints)
+    for j in range(nb):
+        posture[:, j] = np.interp(position, np.arange(B), base[:, j])
+    return posture
+
+
+def whole_body_configurations(
+    robot: RobotDescription,
+    model: mujoco.MjModel,
+    joint: int,
+    task: ArticulationTask,
+    grasp: GraspCandidate,
+    states: FloatArray,
+    placement: BasePlacement,
+    target_state: float,
+    fingertip_depth: float,
+    config: PlanConfig,
+) -> dict:
+    """Whole-body IK for approach, grasp, handle path and retreat from a base placement.
+
+    Returns a dict: grasp, flip, path (N, 4, 4 grasp frames used), states (N,), configs {approach:
+    [q_start, (via,) q_pre, q_grasp], path: (N, nq), retreat}, tracked (IKResult), placement.
+    """
+    frames, depth, tilt = grasp.frames, grasp.depth, grasp.tilt
+    start_state = float(states[0])
+    data = mujoco.MjData(model)
+    data.qpos[model.jnt_qposadr[joint]] = start_state
+    mujoco.mj_kinematics(model, data)
+    contact = frames[0, :3, 3] + depth * frames[0, :3, 2]
+    handle = geoms_near(model, data, part_geoms(model, joint), contact, config.grasp.handle_radius)
+    base_points = np.column_stack([placement.poses[:, :2], np.full(len(placement.poses), 0.5)])
+    ik = WholeBodyIK(robot, model, joint, np.vstack([frames[:, :3, 3], base_points]), handle, config.ik)
+    posture = posture_along(robot, placement, len(states))
+    q_start = posture[0].copy()
+    opening, holding = grasp.opening, grasp.holding
+
+    best = None
+    for flip in (False, True):
+        path = frames @ FLIP if flip else frames
+        T_pre = offset_along_approach(path[0], config.pregrasp_distance)
+        q_pre, e_pos, e_rot = ik.solve(T_pre, q_start, posture[0], start_state, opening)
+        score = e_pos + 0.1 * e_rot + 0.01 * float(np.linalg.norm(q_pre - q_start))
+        if best is None or score < best[0]:
+            best = (score, flip, path, q_pre, e_pos, e_rot)
+    assert best is not None
+    _, flip, path, q_pre, e_pos, e_rot = best
+    _require(e_pos, e_rot, config, "pre-grasp pose", start_state, task)
+    q_grasp, e_pos, e_rot = ik.solve(path[0], q_pre, posture[0], start_state, opening)
+    _require(e_pos, e_rot, config, "grasp pose", start_state, task)
+
+    allowed = set(handle.tolist())
+    scene = np.flatnonzero(~np.isin(model.geom_bodyid, ik.indices.bodies))
+    floor = set(floor_geoms(model, scene).tolist())
+    approach = [q_start, q_pre, q_grasp]
+    hit = first_collision(model, ik, _ruckig_samples(robot, q_start, q_pre, config), start_state, opening, allowed, floor)
+    if hit is not None:
+        T_via = offset_along_approach(path[0], config.via_distance)
+        q_via, e_pos, e_rot = ik.solve(T_via, q_start, posture[0], start_state, opening)
+        _require(e_pos, e_rot, config, "approach via pose", start_state, task)
+        approach = [q_start, q_via, q_pre, q_grasp]
+        for q0, q1 in ((q_start, q_via), (q_via, q_pre)):
+            hit = first_collision(model, ik, _ruckig_samples(robot, q0, q1, config), start_state, opening, allowed, floor)
+            if hit is not None:
+                raise PlanningError(f"approach of part '{task.part}': {hit[0]} runs into {hit[1]} (also through a via pose)")
+
+    tracked = ik.track(path[1:], states[1:], q_grasp, posture[1:], holding)
+    worst = int(np.argmax(tracked.position_error / config.track_position_tolerance + tracked.orientation_error / config.track_orientation_tolerance))
+    _require(tracked.position_error[worst], tracked.orientation_error[worst], config, "handle path", states[1 + worst], task)
+    q_path = np.vstack([q_grasp, tracked.q])
+    states, path, q_path = _refine_path(ik, task, states, path, q_path, depth, tilt, flip, holding, config)
+    overload = gravity_overload(
+        robot, model, ik, np.vstack([q_grasp, q_path]), np.r_[start_state, states], holding, config.gravity_effort_share
+    )
+    if overload is not None:
+        raise GravityOverload(
+            f"part '{task.part}': at the planned grasp {overload[0]} must hold {overload[1]:.1f} against gravity, "
+            f"more than {config.gravity_effort_share:.0%} of its effort limit {overload[2]:.1f}"
+        )
+    # The retreat only has to take the fingers off the handle: the IK's best effort is kept when it leaves
+    # the handle ``min_retreat_clearance`` beyond the fingertips.
+    released = release_command(robot, holding, config.grasp)
+    T_end = ik.grasp_pose(q_path[-1], target_state, released)
+    q_retreat = q_path[-1]
+    steps = np.arange(1, int(np.ceil(config.retreat_distance / config.retreat_step)) + 1) * config.retreat_step
+    for distance in np.minimum(steps, config.retreat_distance):
+        T_retreat = offset_along_approach(path[-1], float(distance))
+        q_next, e_pos, e_rot = ik.solve(T_retreat, q_retreat, q_retreat, target_state, released)
+        if e_pos > config.track_position_tolerance or e_rot > config.track_orientation_tolerance:
+            break
+        q_retreat = q_next
+    T_back = ik.grasp_pose(q_retreat, target_state, released)
+    backed = float((T_end[:3, 3] - T_back[:3, 3]) @ T_end[:3, 2])
+    needed = max(fingertip_depth - depth, 0.0) + config.min_retreat_clearance
+    if backed < needed:
+        raise PlanningError(
+            f"whole-body IK: retreat from part '{task.part}' at state {target_state:.3f} {task.unit} backs the gripper "
+            f"off only {1000 * backed:.0f} mm ({1000 * needed:.0f} mm needed to clear the handle)"
+        )
+    return {
+        "grasp": grasp,
+        "flip": flip,
+        "path": path,
+        "states": states,
+        "configs": {"approach": approach, "path": q_path, "retreat": q_retreat},
+        "tracked": tracked,
+        "placement": placement,
+        "tilt": 0.0,
+    }
+
+
+def _refine_path(
+    ik: WholeBodyIK,
+    task: ArticulationTask,
+    states: FloatArray,
+    path: FloatArray,
+    q_path: FloatArray,
+    depth: float,
+    tilt: float,
+    flip: bool,
+    fingers: float,
+    config: PlanConfig,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Insert IK waypoints where the joint-space segment between two waypoints strays from the handle path.
+
+    The timed path interpolates joints between waypoints; where the arm reconfigures between two of them
+    (near a joint limit, say) the grasp point in the middle can leave the handle's path by centimetres.
+    Each pass checks the midpoint of every segment and solves a new waypoint where it is more than
+    ``refine_tolerance`` off.
+    """
+    for _ in range(config.refine_passes):
+        middle_q = (q_path[:-1] + q_path[1:]) / 2.0
+        middle_s = (states[:-1] + states[1:]) / 2.0
+        expected = handle_frames(task, np.concatenate([[states[0]], middle_s]), depth, tilt, config.grasp)[1:]
+        if flip:
+            expected = expected @ FLIP
+        off = []
+        for k, (q, s, T) in enumerate(zip(middle_q, middle_s, expected)):
+            T_now = ik.grasp_pose(q, float(s), fingers)
+            p_now = T_now[:3, 3] + depth * T_now[:3, 2]
+            if np.linalg.norm(p_now - (T[:3, 3] + depth * T[:3, 2])) > config.refine_tolerance:
+                off.append(k)
+        if not off:
+            break
+        new_q = {k: ik.solve(expected[k], middle_q[k], middle_q[k], float(middle_s[k]), fingers)[0] for k in off}
+        order = np.argsort(np.concatenate([np.arange(len(states)), np.array(off) + 0.5]), kind="stable")
+        states = np.concatenate([states, middle_s[off]])[order]
+        path = np.concatenate([path, expected[off]])[order]
+        q_path = np.concatenate([q_path, np.array([new_q[k] for k in off])])[order]
+    return states, path, q_path
+
+
+def _ruckig_samples(robot: RobotDescription, q0: FloatArray, q1: FloatArray, config: PlanConfig) -> FloatArray:
+    return point_to_point(q0, q1, robot.v_max, robot.a_max, config.retime).q[::2]
+
+
+def _require(e_pos: float, e_rot: float, config: PlanConfig, what: str, state: float, task: ArticulationTask) -> None:
+    if e_pos > config.track_position_tolerance or e_rot > config.track_orientation_tolerance:
+        raise PlanningError(
+            f"whole-body IK: {what} of part '{task.part}' at state {state:.3f} {task.unit} not reached: "
+            f"{1000 * e_pos:.1f} mm, {np.rad2deg(e_rot):.1f} deg off (tolerance "
+            f"{1000 * config.track_position_tolerance:.0f} mm, {np.rad2deg(config.track_orientation_tolerance):.0f} deg)"
+        )
+
+
+__all__ = ["posture_along", "whole_body_configurations"]

@@ -1,0 +1,158 @@
+"""Checking plans in MuJoCo: plans on ground truth pass (revolute through the CLI, prismatic through the API),
+an infeasible target fails on the right criterion, and a plan made on a perturbed model still passes thanks to
+the compliant controller."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+from test_plan_scenes import PRISMATIC_CASE, REVOLUTE_CASE, write_gt_scene
+
+from funrec_robot import build_mujoco_model, default_robot_path, load_robot
+from funrec_robot.check import CRITERIA, CheckConfig, check_plan
+from funrec_robot.cli import EXIT_CHECK_FAILED, main
+from funrec_robot.plan import plan_interaction
+from funrec_robot.plan_file import read_plan
+from funrec_robot.task import ArticulationTask
+from funrec_robot.task_sources import task_from_ground_truth
+
+AXIS_ERROR_DEG = 3.0
+"""Axis error of the perturbed model (a reconstructed twin is off by a few degrees)."""
+PIVOT_ERROR_M = 0.03
+"""Pivot error of the perturbed model, m."""
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot(default_robot_path())
+
+
+@pytest.fixture(scope="module")
+def scenes(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    root = tmp_path_factory.mktemp("check_scenes")
+    return {name: write_gt_scene(name, root) for name in (REVOLUTE_CASE, PRISMATIC_CASE)}
+
+
+def _plan(robot, gt: Path, task: ArticulationTask | None = None, target: str | float = "open"):
+    model = build_mujoco_model(robot, gt / "scene.xml")
+    task = task_from_ground_truth(gt, "part_0", model) if task is None else task
+    return plan_interaction(robot, gt / "scene.xml", task, target, model=model)
+
+
+def test_revolute_plan_and_check_pass_through_the_cli(scenes, tmp_path, capsys) -> None:
+    gt = scenes[REVOLUTE_CASE]
+    plan_path, video = tmp_path / "plan.json", tmp_path / "check.gif"
+    assert main(["plan", "--scene", str(gt), "--part", "part_0", "--to", "open", "-o", str(plan_path)]) == 0
+    assert main(["check", str(plan_path), "--gt", str(gt), "--video", str(video), "--video-fps", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "PASS" in out and video.stat().st_size > 0
+    report = json.loads(plan_path.with_suffix(".check.json").read_text())
+    assert report["passed"] and report["failed_criteria"] == []
+    assert report["target_error"] < np.deg2rad(5.0) and report["peak_handle_force_N"] <= 50.0
+    assert read_plan(plan_path).provenance["plan_time_s"] < 10.0
+
+
+def test_prismatic_plan_and_check_pass(robot, scenes) -> None:
+    gt = scenes[PRISMATIC_CASE]
+    plan = _plan(robot, gt)
+    report = check_plan(plan, robot, gt / "scene.xml")
+    assert report.passed, report.failures
+    assert report.grasp_engaged_time is not None and report.collisions == ()
+    assert report.target_error < 0.02 and report.max_velocity_ratio <= 1.1
+
+
+def test_infeasible_target_fails_on_the_target_criterion(robot, scenes, tmp_path) -> None:
+    """A model whose range overshoots the real one (the drawer stops at 0.433 m) cannot reach 0.53 m."""
+    gt = scenes[PRISMATIC_CASE]
+    task = task_from_ground_truth(gt, "part_0")
+    stretched = dataclasses.replace(task, state_range=(0.0, 0.6))
+    plan = _plan(robot, gt, stretched, 0.53)
+    report = check_plan(plan, robot, gt / "scene.xml")
+    failed = {f.criterion for f in report.failures}
+    assert not report.passed and "target" in failed and failed <= set(CRITERIA)
+    target = next(f for f in report.failures if f.criterion == "target")
+    assert "part_0" in target.detail and report.final_state < 0.44
+
+
+def test_cli_check_exits_3_on_failure(robot, scenes, tmp_path) -> None:
+    gt = scenes[PRISMATIC_CASE]
+    plan_path = tmp_path / "plan.json"
+    assert main(["plan", "--scene", str(gt), "--to", "0.3", "-o", str(plan_path)]) == 0
+    # Judged against an impossible force bound, the same plan fails.
+    assert main(["check", str(plan_path), "--max-handle-force", "0.01"]) == EXIT_CHECK_FAILED
+    report = json.loads(plan_path.with_suffix(".check.json").read_text())
+    assert "handle_force" in report["failed_criteria"]
+
+
+def _perturbed(task: ArticulationTask, rng: np.random.Generator) -> ArticulationTask:
+    """The task with its axis turned by AXIS_ERROR_DEG about a random perpendicular through the axis point
+    level with the handle (where a twin's estimate is anchored: the observed motion) and its pivot moved
+    PIVOT_ERROR_M across the axis: what a reconstructed twin would hand the planner."""
+    perpendicular = np.cross(task.axis_world, rng.normal(size=3))
+    perpendicular /= np.linalg.norm(perpendicular)
+    R = Rotation.from_rotvec(np.deg2rad(AXIS_ERROR_DEG) * perpendicular).as_matrix()
+    shift = np.cross(task.axis_world, rng.normal(size=3))
+    shift *= PIVOT_ERROR_M / np.linalg.norm(shift)
+    pivot = None
+    if task.pivot_world is not None:
+        anchor = task.pivot_world + task.axis_world * float(task.axis_world @ (task.p_world_contact - task.pivot_world))
+        pivot = anchor + shift
+    return dataclasses.replace(task, axis_world=R @ task.axis_world, pivot_world=pivot)
+
+
+def test_plan_on_a_perturbed_model_passes_in_the_true_scene(robot, scenes) -> None:
+    gt = scenes[REVOLUTE_CASE]
+    task = _perturbed(task_from_ground_truth(gt, "part_0"), np.random.default_rng(3))
+    plan = _plan(robot, gt, task)
+    report = check_plan(plan, robot, gt / "scene.xml")
+    assert report.passed, report.failures
+    assert report.peak_handle_force <= 50.0
+
+
+@pytest.mark.slow
+def test_compliance_is_what_absorbs_the_model_error(robot, scenes) -> None:
+    """Without the admittance law the same perturbed plan fights the real hinge with more force."""
+    gt = scenes[REVOLUTE_CASE]
+    task = _perturbed(task_from_ground_truth(gt, "part_0"), np.random.default_rng(3))
+    plan = _plan(robot, gt, task)
+    compliant = check_plan(plan, robot, gt / "scene.xml")
+    rigid = check_plan(plan, robot, gt / "scene.xml", config=dataclasses.replace(CheckConfig(), compliant=False))
+    assert rigid.peak_handle_force > compliant.peak_handle_force
+
+
+FETCH_PRISMATIC_CASE = "pri_drawer_03"
+"""A drawer with a round bar at 0.94 m: Fetch can take it with its gripper pitched down."""
+
+
+def _fetch():
+    pytest.importorskip("gymnasium_robotics")
+    from funrec_robot import resolve_robot
+
+    return load_robot(resolve_robot("fetch"))
+
+
+@pytest.mark.slow
+def test_fetch_plans_and_passes_a_prismatic_case(tmp_path) -> None:
+    fetch = _fetch()
+    gt = write_gt_scene(FETCH_PRISMATIC_CASE, tmp_path)
+    plan = _plan(fetch, gt)
+    report = check_plan(plan, fetch, gt / "scene.xml")
+    assert report.passed, report.failures
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(
+    reason="the gymnasium Fetch model's wrist flex (25.7 N m) cannot hold its 4 kg fingers level and its shoulder "
+    "saturates following a door's arc; see the report",
+    strict=False,
+)
+def test_fetch_plans_and_passes_a_revolute_case(scenes) -> None:
+    fetch = _fetch()
+    gt = scenes[REVOLUTE_CASE]
+    report = check_plan(_plan(fetch, gt), fetch, gt / "scene.xml")
+    assert report.passed, report.failures

@@ -1,0 +1,185 @@
+"""Planning on ground-truth scenes: the task read off the scene geometry, base placement clear of the scene,
+timed plans within the robot's limits, plan.json round trip, errors that name what failed."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+from test_plan_scenes import PRISMATIC_CASE, REVOLUTE_CASE, write_gt_scene
+
+from funrec.errors import FunrecError, PlanningError
+from funrec.twin_format import TwinArticulation, make_part, write_articulation
+from funrec_robot import build_mujoco_model, default_robot_path, load_robot, robot_indices
+from funrec_robot.feasibility import kinematic_collisions
+from funrec_robot.plan import PlanConfig, plan_interaction
+from funrec_robot.plan_file import read_plan, write_plan
+from funrec_robot.retime import limit_use
+from funrec_robot.scene import bodies_geoms, floor_geoms, part_joint
+from funrec_robot.task import resolve_target, roll_to_hold, rotation_about_grasp_axis
+from funrec_robot.task_sources import locate_scene, task_from_ground_truth, task_from_twin
+
+ACCELERATION_TOL = 0.03
+"""Relative excess of finite-difference accelerations of 10 ms plan samples over the limits accepted (a
+jump in a piecewise-constant acceleration read by a central difference; the limits hold on the dense check)."""
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot(default_robot_path())
+
+
+@pytest.fixture(scope="module")
+def scenes(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    root = tmp_path_factory.mktemp("gt_scenes")
+    return {name: write_gt_scene(name, root) for name in (REVOLUTE_CASE, PRISMATIC_CASE)}
+
+
+@pytest.fixture(scope="module")
+def revolute(robot, scenes):
+    gt = scenes[REVOLUTE_CASE]
+    model = build_mujoco_model(robot, gt / "scene.xml")
+    task = task_from_ground_truth(gt, "part_0", model)
+    return gt, model, task, plan_interaction(robot, gt / "scene.xml", task, "open", model=model)
+
+
+def test_task_reads_approach_handle_and_standoff_off_the_scene(scenes) -> None:
+    """The cabinets stand against the +y wall: the approach (into the front) is +y, from the panel's normal."""
+    door = task_from_ground_truth(scenes[REVOLUTE_CASE], "part_0")
+    np.testing.assert_allclose(door.approach_world, [0.0, 1.0, 0.0], atol=1e-6)
+    np.testing.assert_allclose(np.abs(door.handle_axis_world), [0.0, 0.0, 1.0], atol=1e-6)  # vertical bar
+    assert 0.005 < door.surface_offset < 0.05 and 0.004 < door.handle_width < 0.03
+    drawer = task_from_ground_truth(scenes[PRISMATIC_CASE], "part_0")
+    np.testing.assert_allclose(np.abs(drawer.handle_axis_world), [1.0, 0.0, 0.0], atol=1e-6)  # horizontal bar
+    assert drawer.joint_type == "prismatic" and drawer.demo_states.size > 0
+
+
+def test_base_placement_is_collision_free(robot, revolute) -> None:
+    gt, model, task, plan = revolute
+    assert plan.provenance["placement_clearance_m"] >= PlanConfig().placement.clearance - 1e-3
+    indices = robot_indices(robot, model)
+    data = mujoco.MjData(model)
+    scene = np.flatnonzero(~np.isin(model.geom_bodyid, indices.bodies))
+    ignore = set(floor_geoms(model, scene).tolist())
+    robot_geoms = set(bodies_geoms(model, indices.bodies).tolist())
+    for i in (0, plan.segment("actuate").start, plan.segment("actuate").end):
+        data.qpos[:] = model.qpos0
+        data.qpos[indices.qpos] = plan.q[i]
+        data.qpos[model.jnt_qposadr[part_joint(model, "part_0")]] = plan.part_state[i]
+        mujoco.mj_forward(model, data)
+        base_contacts = [
+            (model.geom(c.geom1).name, model.geom(c.geom2).name)
+            for c in data.contact[: data.ncon]
+            if (c.geom1 in robot_geoms) != (c.geom2 in robot_geoms)
+            and not {c.geom1, c.geom2} & ignore
+            and "base" in model.geom(c.geom1 if c.geom1 in robot_geoms else c.geom2).name
+        ]
+        assert not base_contacts, (i, base_contacts)
+
+
+def test_plan_replays_without_forbidden_contacts(robot, revolute) -> None:
+    """Kinematic replay of the whole plan (every 50 ms): the robot touches nothing but the handle."""
+    gt, model, task, plan = revolute
+    assert kinematic_collisions(robot, model, plan) == []
+
+
+def test_plan_is_labelled_and_within_the_robot_limits(robot, revolute) -> None:
+    *_, plan = revolute
+    assert [s.label for s in plan.segments] == ["approach", "grasp", "actuate", "release", "retreat"]
+    assert plan.joint_names == robot.joint_names
+    np.testing.assert_allclose(np.diff(plan.t), 0.01, atol=1e-9)
+    use = limit_use(plan.t, plan.qd, robot.v_max, robot.a_max)
+    assert use.velocity <= 1.0 + 1e-6 and use.acceleration <= 1.0 + ACCELERATION_TOL, use
+    assert np.all(plan.q >= robot.q_min - 1e-9) and np.all(plan.q <= robot.q_max + 1e-9)
+    actuate = plan.segment("actuate")
+    assert np.all(plan.gripper_command[actuate.start : actuate.end + 1] == plan.grasp_command)
+    assert plan.part_state[actuate.end] == pytest.approx(plan.target_state, abs=1e-6)
+    for key in ("robot_sha256", "scene_sha256", "task_files", "plan_time_s"):
+        assert key in plan.provenance
+
+
+def test_plan_json_round_trip(tmp_path, revolute) -> None:
+    *_, plan = revolute
+    back = read_plan(write_plan(tmp_path / "plan.json", plan))
+    for field in dataclasses.fields(plan):
+        a, b = getattr(plan, field.name), getattr(back, field.name)
+        if isinstance(a, np.ndarray):
+            np.testing.assert_allclose(b, a, atol=1e-6)
+        elif field.name != "provenance":
+            assert a == b, field.name
+
+
+def test_bad_plan_file_names_the_field(tmp_path) -> None:
+    path = tmp_path / "plan.json"
+    path.write_text('{"format": "funrec-plan/1", "joint_names": ["a"], "t": [0, 0.01], "q": [[0]]}')
+    with pytest.raises(FunrecError, match=r"plan\.json.*'q'"):
+        read_plan(path)
+
+
+def test_targets_outside_the_range_are_refused_with_the_range(scenes) -> None:
+    task = task_from_ground_truth(scenes[PRISMATIC_CASE], "part_0")
+    assert resolve_target(task, "open") == task.state_range[1]
+    with pytest.raises(PlanningError, match=r"part 'part_0': target 2 m outside the part's range \[0, 0\.433\]"):
+        resolve_target(task, 2.0)
+    with pytest.raises(PlanningError, match="expected a joint state in m or one of open, close, demo"):
+        resolve_target(task, "ajar")
+
+
+def test_task_from_twin_maps_the_affordance_frame_into_the_scene(tmp_path) -> None:
+    """affordances.json grasp frames have z = approach and y = handle axis; the robot's grasp frame closes its
+    fingers across the handle, so the task's handle axis is that y, and both move with T_scene_twin."""
+    part = make_part("part_0", "revolute", [0.0, 0.0, 1.0], [1.0, 2.0, 0.0], [0, 1], [0.0, 0.5], (0.0, 1.5))
+    write_articulation(tmp_path / "articulation.json", TwinArticulation(frame_count=2, parts=(part,)))
+    T_world_grasp = np.eye(4)
+    T_world_grasp[:3, :3] = np.column_stack([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # z = -y
+    affordances = {"parts": [{"name": "part_0", "contact_point": [1.3, 1.9, 0.8], "T_world_grasp": T_world_grasp.tolist()}]}
+    (tmp_path / "affordances.json").write_text(json.dumps(affordances))
+    T_scene_twin = np.eye(4)
+    T_scene_twin[:3, :3] = Rotation.from_euler("z", np.pi).as_matrix()  # the twin's y points the scene's -y
+    T_scene_twin[:3, 3] = [0.5, 0.0, 0.0]
+    task = task_from_twin(tmp_path, "part_0", T_scene_twin)
+    np.testing.assert_allclose(task.approach_world, [0.0, 1.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(task.handle_axis_world, [0.0, 0.0, 1.0], atol=1e-12)
+    np.testing.assert_allclose(task.p_world_contact, [-0.8, -1.9, 0.8], atol=1e-12)
+    np.testing.assert_allclose(task.pivot_world, [-0.5, -2.0, 0.0], atol=1e-12)
+    assert task.source.startswith("twin:") and task.surface_offset is None
+
+
+def test_unknown_part_lists_the_parts(scenes) -> None:
+    with pytest.raises(PlanningError, match=r"no part 'part_7'; parts: 'part_0'"):
+        task_from_ground_truth(scenes[PRISMATIC_CASE], "part_7")
+
+
+def test_locate_scene_accepts_folders_and_files(scenes, tmp_path) -> None:
+    gt = scenes[PRISMATIC_CASE]
+    assert locate_scene(gt).scene_xml == gt / "scene.xml"
+    assert locate_scene(gt.parent).kind == "gt"
+    assert locate_scene(gt / "scene.xml").folder == gt
+    with pytest.raises(PlanningError, match="articulation.json"):
+        locate_scene(tmp_path)
+
+
+def test_unreachable_part_fails_naming_the_step(robot, scenes) -> None:
+    gt = scenes[PRISMATIC_CASE]
+    task = task_from_ground_truth(gt, "part_0")
+    high = dataclasses.replace(task, p_world_contact=task.p_world_contact + [0.0, 0.0, 1.6])  # a handle at 2.4 m
+    with pytest.raises(PlanningError, match="vertical reach|base placement|whole-body IK"):
+        plan_interaction(robot, gt / "scene.xml", high, "open", config=dataclasses.replace(PlanConfig(), time_budget=3.0))
+
+
+@settings(deadline=None, max_examples=30)
+@given(seed=st.integers(0, 2**31 - 1), roll=st.floats(-1.2, 1.2), axis=st.integers(0, 2))
+def test_roll_to_hold_undoes_a_roll_about_the_axis(seed: int, roll: float, axis: int) -> None:
+    R_held = Rotation.random(random_state=seed).as_matrix()
+    R = R_held @ rotation_about_grasp_axis(axis, [roll])[0]
+    back = roll_to_hold(R[None], R_held, axis, np.inf)[0]
+    assert back == pytest.approx(-roll, abs=1e-9)
+    clipped = roll_to_hold(R[None], R_held, axis, 0.5)[0]
+    assert abs(clipped) <= 0.5 + 1e-12
