@@ -1,0 +1,139 @@
+"""Tests of funrec.hands: capture masks pass through, detection on the tiny synthetic capture.
+
+``ground_truth_inputs`` builds the stage inputs of a generated capture from its ground truth
+(tests only; the library never reads gt/): camera poses mapped to a chosen twin world frame
+through frame 0, joints, true part masks and true part points.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+import pytest
+import trimesh
+
+from funrec.capture import load_capture, read_mask
+from funrec.geometry.joints import joint_transform
+from funrec.geometry.transforms import invert_transform, transform_points
+from funrec.ground_truth import read_ground_truth
+from funrec.hands import HandConfig, detect_hands, part_poses
+from funrec.segmentation import PartMasks
+from funrec.tracking import CameraTrajectory
+from funrec.twin_format import ArticulatedPart, make_part
+
+MIN_MEAN_IOU_TINY = 0.7
+"""Mean per-frame IoU detection must reach on the tiny 80x60 capture without its masks (frames
+with a true hand). Measured 0.82: the forearm is 3-6 px wide there, so one pixel of boundary
+error costs 20-30 % IoU; the 640x480 bench reaches ~0.95."""
+
+
+def ground_truth_inputs(
+    capture_root: Path, T_twin_camera0: npt.ArrayLike, rebase: bool = False
+) -> tuple[CameraTrajectory, list[ArticulatedPart], list[PartMasks], list[np.ndarray]]:
+    """Trajectory, parts, part masks and canonical part points from a capture's gt/ folder.
+
+    Args:
+        capture_root: a generated capture with gt/.
+        T_twin_camera0: (4, 4) pose of camera 0 in the twin world frame to build.
+        rebase: mimic the pipeline's convention: a part is tracked only around its motion and its
+            canonical state is its first tracked state (the true one is the closed state).
+    """
+    gt = read_ground_truth(capture_root / "gt")
+    T_twin_world = np.asarray(T_twin_camera0, dtype=np.float64) @ invert_transform(gt.T_world_camera[0])
+    trajectory = CameraTrajectory(T_twin_world @ gt.T_world_camera, np.zeros(0, np.int64), np.ones(gt.frame_count, bool))
+    parts, masks, surfaces = [], [], []
+    for gt_part in gt.parts:
+        part = gt_part.part
+        frames, states = part.frames, part.states
+        points = np.asarray(trimesh.load(str(gt.points_path(part.name)), process=False).vertices, dtype=np.float64)
+        if rebase:
+            moving = np.flatnonzero(np.abs(np.diff(states)) > 1e-4)
+            keep = slice(max(0, moving[0] - 3), min(len(frames), moving[-1] + 8))
+            frames, states = frames[keep], states[keep]
+            points = transform_points(joint_transform(part.joint_type, part.axis_world, part.pivot_world, states[0]), points)
+            states = states - states[0]
+        pivot = None if part.pivot_world is None else transform_points(T_twin_world, part.pivot_world[None])[0]
+        parts.append(make_part(part.name, part.joint_type, T_twin_world[:3, :3] @ part.axis_world, pivot, frames, states))
+        files = [f for f in sorted((gt.root / "masks" / part.name).glob("*.png")) if frames[0] <= int(f.stem) <= frames[-1]]
+        masks.append(PartMasks(np.array([int(f.stem) for f in files], dtype=np.int64), tuple(f.read_bytes() for f in files),
+                               int(read_mask(files[0]).shape[0]), int(read_mask(files[0]).shape[1]), np.zeros(0, np.int64)))
+        surfaces.append(transform_points(T_twin_world, points))
+    return trajectory, parts, masks, surfaces
+
+
+def _ious(hands, gt_folder: Path) -> tuple[list[float], int]:
+    """Per-frame IoU over frames with a true hand, and the number of frames with a false hand."""
+    ious, false_frames = [], 0
+    for frame, mask in hands:
+        truth = read_mask(gt_folder / f"{frame:06d}.png")
+        if truth.any():
+            ious.append((mask & truth).sum() / (mask | truth).sum())
+        elif mask.sum() > 0.001 * mask.size:
+            false_frames += 1
+    return ious, false_frames
+
+
+def test_capture_masks_are_returned_as_they_are(tiny_capture: Path) -> None:
+    capture = load_capture(tiny_capture)
+    trajectory, *_ = ground_truth_inputs(tiny_capture, np.eye(4))
+    hands = detect_hands(capture, trajectory)
+    assert hands.source == "capture" and len(hands) == len(capture)
+    for frame, mask in hands:
+        np.testing.assert_array_equal(mask, capture.mask("hand", frame))
+
+
+def test_detection_without_capture_masks_finds_the_hand(tiny_capture: Path) -> None:
+    capture = load_capture(tiny_capture)
+    trajectory, parts, masks, _ = ground_truth_inputs(tiny_capture, np.eye(4))
+    hands = detect_hands(capture, trajectory, parts, masks, HandConfig(use_capture_masks=False))
+    assert hands.source == "detected" and hands.colour_model
+    ious, false_frames = _ious(hands, tiny_capture / "gt" / "masks" / "hand")
+    assert np.mean(ious) >= MIN_MEAN_IOU_TINY, np.round(ious, 2)
+    assert false_frames <= 1
+
+
+def test_detection_does_not_depend_on_the_world_frame(tiny_capture: Path) -> None:
+    capture = load_capture(tiny_capture)
+    T = np.array([[0.0, -1.0, 0.0, 0.3], [1.0, 0.0, 0.0, -2.0], [0.0, 0.0, 1.0, 1.0], [0.0, 0.0, 0.0, 1.0]])
+    config = HandConfig(use_capture_masks=False)
+    a = detect_hands(capture, *ground_truth_inputs(tiny_capture, np.eye(4))[:3], config)
+    b = detect_hands(capture, *ground_truth_inputs(tiny_capture, T)[:3], config)
+    changed = sum(int((ma ^ mb).sum()) for (_, ma), (_, mb) in zip(a, b))
+    assert changed <= 0.001 * len(capture) * capture.intrinsics.width * capture.intrinsics.height  # float round-off only
+
+
+def test_part_poses_hold_the_end_states_outside_the_tracked_frames() -> None:
+    part = make_part("door", "prismatic", [1.0, 0.0, 0.0], None, [2, 3, 5], [0.0, 0.1, 0.3])
+    T = part_poses(part, 8)
+    np.testing.assert_allclose(T[:, 0, 3], [0.0, 0.0, 0.0, 0.1, 0.2, 0.3, 0.3, 0.3])
+    np.testing.assert_allclose(T[:, :3, :3], np.broadcast_to(np.eye(3), (8, 3, 3)))
+
+
+def test_config_and_input_validation(tiny_capture: Path) -> None:
+    with pytest.raises(ValueError, match="non-zero reference offsets"):
+        HandConfig(reference_offsets_s=(0.0,))
+    with pytest.raises(ValueError, match="odd"):
+        HandConfig(closing_px=4)
+    capture = load_capture(tiny_capture)
+    trajectory, parts, masks, _ = ground_truth_inputs(tiny_capture, np.eye(4))
+    short = dataclasses.replace(trajectory, T_world_camera=trajectory.T_world_camera[:3], tracked=trajectory.tracked[:3])
+    with pytest.raises(ValueError, match="3 poses for 24 frames"):
+        detect_hands(capture, short)
+    with pytest.raises(ValueError, match="2 part mask sets for 1 parts"):
+        detect_hands(capture, trajectory, parts, [masks[0], masks[0]], HandConfig(use_capture_masks=False))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["rev_cabinet_right_00", "pri_drawer_01", "rev_wall_cabinet_00"])
+def test_bench_detection_iou(name: str) -> None:
+    root = Path(__file__).resolve().parents[1] / "bench_suite" / name
+    if not (root / "gt").is_dir():
+        pytest.skip(f"{root} not generated")
+    capture = load_capture(root, check_headers=False)
+    trajectory, parts, masks, _ = ground_truth_inputs(root, np.eye(4))
+    hands = detect_hands(capture, trajectory, parts, masks, HandConfig(use_capture_masks=False))
+    ious, false_frames = _ious(hands, root / "gt" / "masks" / "hand")
+    assert np.mean(ious) >= 0.85 and false_frames == 0
