@@ -97,7 +97,8 @@ def track_klt(
     return uv1, ok
 
 
-def sample_depth(depth_m: FloatArray, uv: FloatArray, window_px: int, max_spread: float) -> FloatArray:
+def sample_depth(depth_m: FloatArray, uv: FloatArray, window_px: int, max_spread: float,
+                 subpixel: bool = False) -> FloatArray:
     """Robust depth at sub-pixel positions: median of a small window, rejecting depth edges.
 
     A depth edge (a pixel on a silhouette, where the window mixes foreground and
@@ -109,6 +110,8 @@ def sample_depth(depth_m: FloatArray, uv: FloatArray, window_px: int, max_spread
         window_px: odd side of the square window, pixels.
         max_spread: reject when (max - min) of the valid readings exceeds this fraction
             of the median depth.
+        subpixel: instead of the window median, the least-squares plane through the window's
+            readings evaluated at the sub-pixel position (unbiased on slanted surfaces).
 
     Returns:
         (N,) depth in metres; NaN where fewer than half the window is valid, at depth
@@ -133,7 +136,22 @@ def sample_depth(depth_m: FloatArray, uv: FloatArray, window_px: int, max_spread
     if np.any(enough):
         median[enough] = np.nanmedian(patch[enough], axis=1)
         spread[enough] = np.nanmax(patch[enough], axis=1) - np.nanmin(patch[enough], axis=1)
-    z[inside] = np.where(enough & (spread <= max_spread * median), median, np.nan)
+    ok = enough & (spread <= max_spread * median)
+    if subpixel and np.any(ok):
+        # Least-squares plane z = c0 + c1 du + c2 dv through the window's valid readings, read at
+        # the sub-pixel position: the window centre is the rounded pixel, and on a slanted
+        # surface (a floor seen at a grazing angle) half a pixel of rounding is centimetres of
+        # depth, which the median keeps.
+        offsets_uv = np.stack([np.ones(patch.shape[1]), du.ravel(), dv.ravel()], 1)
+        valid = np.isfinite(patch[ok])
+        A = valid[..., None] * offsets_uv
+        AtA = np.einsum("nki,nkj->nij", A, A)
+        Atz = np.einsum("nki,nk->ni", A, np.nan_to_num(patch[ok]))
+        coeff = np.linalg.solve(AtA + 1e-9 * np.eye(3), Atz[..., None])[..., 0]
+        frac_u = uv[inside, 0][ok] - u[inside][ok]
+        frac_v = uv[inside, 1][ok] - v[inside][ok]
+        median[ok] = coeff[:, 0] + coeff[:, 1] * frac_u + coeff[:, 2] * frac_v
+    z[inside] = np.where(ok, median, np.nan)
     return z
 
 

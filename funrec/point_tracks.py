@@ -61,7 +61,8 @@ class PointTrackConfig:
     """
 
     grid_columns: int = 32
-    """Columns of the uniform seed grid (rows follow the aspect ratio): 20 px at 640 wide."""
+    """Columns of the seed grid of square cells (rows follow the aspect ratio): 20 px at 640
+    wide. Each free cell seeds its best-textured pixel."""
     seed_radius: float = 0.75
     """No new track is seeded closer than this many grid steps to a live track."""
     reseed_every: int = 3
@@ -70,12 +71,16 @@ class PointTrackConfig:
     """Shi-Tomasi corners tried per seeding pass before the grid points."""
     min_texture: float = 1e-4
     """Minimal eigenvalue of the structure tensor (cv2.cornerMinEigenVal, intensities in
-    [0, 1]) at a grid seed; below it LK has no gradient to lock on to."""
-    max_alive: int = 500
-    """Live tracks at most (bounds the per-frame cost)."""
-    max_tracks: int = 2000
-    """Tracks in the result at most (bounds its memory, see above); seeding stops when
-    the live tracks plus the finished ones long enough to keep reach it."""
+    [0, 1]) at a grid seed (the best pixel of its cell); below it LK has no gradient to lock
+    on to."""
+    max_alive: int = 1000
+    """Live tracks at most (bounds the per-frame cost, ~3 ms per 1,000 tracks at 640x480).
+    500 was measured to saturate on rendered kitchens before the interaction, so no seed
+    reached a door that only filled 5 % of the view (its live tracks: 35 -> 55)."""
+    max_tracks: int = 5000
+    """Tracks in the result at most (bounds its memory, see above: 250 frames x 5,000 tracks
+    is 51 MB); seeding stops when the live tracks plus the finished ones long enough to keep
+    reach it."""
     min_track_length: int = 3
     """Tracks visible in fewer frames are dropped from the result (too short to show motion)."""
     klt_window_px: int = 21
@@ -86,6 +91,9 @@ class PointTrackConfig:
     """Round-trip error above which a track dies (occlusion, slipping along an edge), pixels."""
     depth_window_px: int = 5
     """Window for the robust depth of an observation, pixels (odd)."""
+    subpixel_depth: bool = True
+    """Read depth from the plane fitted to the depth window at the sub-pixel track position
+    rather than the window median at the rounded pixel (see :func:`funrec.features.sample_depth`)."""
     depth_max_spread: float = 0.05
     """A depth window spread beyond this fraction of its median is a depth edge: no 3D there."""
     min_depth_m: float = 0.2
@@ -111,14 +119,36 @@ class PointTrackConfig:
 
 @dataclass
 class _Tracks:
-    """Mutable streaming state: live tracks and the compact per-frame observation log."""
+    """Mutable streaming state: the live tracks (parallel arrays) and their counters."""
 
     ids: np.ndarray
+    """(L,) track id."""
     uv: FloatArray
+    """(L, 2) pixel in the current frame."""
     last_p_world: FloatArray
+    """(L, 3) last lifted position (for the step test)."""
     visible_count: np.ndarray
+    """(L,) frames with a valid observation so far."""
     next_id: int = 0
     finished_long: int = 0
+
+    @classmethod
+    def empty(cls) -> _Tracks:
+        return cls(np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0, np.int64))
+
+    def keep(self, alive: BoolArray) -> None:
+        for name in ("ids", "uv", "last_p_world", "visible_count"):
+            setattr(self, name, getattr(self, name)[alive])
+
+    def add(self, uv: FloatArray, p_world: FloatArray) -> np.ndarray:
+        """Start tracks at pixels uv (M, 2) lifted to p_world (M, 3); returns their ids."""
+        ids = np.arange(self.next_id, self.next_id + len(uv))
+        self.next_id += len(uv)
+        self.ids = np.concatenate([self.ids, ids])
+        self.uv = np.concatenate([self.uv, uv])
+        self.last_p_world = np.concatenate([self.last_p_world, p_world])
+        self.visible_count = np.concatenate([self.visible_count, np.ones(len(uv), np.int64)])
+        return ids
 
 
 def _hand_free(capture: Capture, frame: int, config: PointTrackConfig) -> BoolArray | None:
@@ -130,9 +160,33 @@ def _hand_free(capture: Capture, frame: int, config: PointTrackConfig) -> BoolAr
     return cv2.dilate(hand.astype(np.uint8), kernel) == 0
 
 
+def _best_in_cells(gray: UInt8Array, free: BoolArray, step: float, min_texture: float) -> FloatArray:
+    """(M, 2) pixel of largest texture (minimal structure-tensor eigenvalue) in each cell of a
+    grid with the given step, among free pixels above ``min_texture``; best cells first.
+
+    The best pixel of a cell, rather than the cell centre, is what puts seeds on weakly
+    textured surfaces (a painted door): there most pixels are flat and a fixed grid point
+    usually lands on one, while almost every cell holds some grain LK can lock on to.
+    """
+    H, W = gray.shape
+    side = max(2, int(round(step)))
+    rows, cols = H // side, W // side
+    texture = cv2.cornerMinEigenVal(gray.astype(np.float32) / 255.0, blockSize=7, ksize=3)
+    score = np.where(free, texture, 0.0)[: rows * side, : cols * side]
+    cells = score.reshape(rows, side, cols, side).transpose(0, 2, 1, 3).reshape(rows, cols, side * side)
+    best = cells.argmax(-1)
+    good = np.take_along_axis(cells, best[..., None], -1)[..., 0] > min_texture
+    r, c = np.nonzero(good)
+    order = np.argsort(-cells[r, c, best[r, c]], kind="stable")
+    r, c = r[order], c[order]
+    dv, du = np.divmod(best[r, c], side)
+    return np.stack([c * side + du, r * side + dv], axis=1).astype(np.float64)
+
+
 def _seed(gray: UInt8Array, depth_m: FloatArray, allowed: BoolArray, live_uv: FloatArray, budget: int,
           config: PointTrackConfig) -> FloatArray:
-    """(M, 2) new seed pixels: corners, then textured grid points, away from live tracks."""
+    """(M, 2) new seed pixels: corners, then the best-textured pixel of each grid cell, away
+    from live tracks."""
     H, W = gray.shape
     step = W / config.grid_columns
     radius = max(1, int(round(config.seed_radius * step)))
@@ -149,13 +203,7 @@ def _seed(gray: UInt8Array, depth_m: FloatArray, allowed: BoolArray, live_uv: Fl
     corners = detect_corners(gray, free, min(budget, config.corners_per_seed), 0.01, radius)
     if len(corners):
         block(corners)
-    rows = int(round(H / step))
-    v, u = np.mgrid[0:rows, 0 : config.grid_columns]
-    grid = np.stack([(u.ravel() + 0.5) * step, (v.ravel() + 0.5) * H / rows], axis=1)
-    grid = grid[mask_at(free, grid)]
-    if len(grid):
-        texture = cv2.cornerMinEigenVal(gray.astype(np.float32) / 255.0, blockSize=7, ksize=3)
-        grid = grid[mask_at(texture > config.min_texture, grid)]
+    grid = _best_in_cells(gray, free, step, config.min_texture)
     return np.concatenate([corners, grid])[:budget]
 
 
@@ -185,7 +233,7 @@ def track_points(
     if len(trajectory.T_world_camera) != F:
         raise ValueError(f"trajectory has {len(trajectory.T_world_camera)} poses, capture has {F} frames")
     K = capture.intrinsics.K
-    state = _Tracks(np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0, np.int64))
+    state = _Tracks.empty()
     log: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
     previous_gray: UInt8Array | None = None
     for frame in range(F):
@@ -203,7 +251,7 @@ def track_points(
             state.uv, alive = track_klt(previous_gray, gray, state.uv, config.klt_window_px,
                                         config.klt_pyramid_levels, config.klt_max_forward_backward_px)
             alive &= mask_at(allowed, state.uv)
-            z = sample_depth(depth_m, state.uv, config.depth_window_px, config.depth_max_spread)
+            z = sample_depth(depth_m, state.uv, config.depth_window_px, config.depth_max_spread, config.subpixel_depth)
             p_world = transform_points(T_world_camera, lift(state.uv, z, K))
             step = np.linalg.norm(p_world - state.last_p_world, axis=1)
             alive &= ~(step > config.max_step_m)  # NaN steps (no depth now or before) pass
@@ -211,23 +259,16 @@ def track_points(
         state.last_p_world = np.where(visible[:, None], p_world, state.last_p_world)
         state.visible_count += visible
         state.finished_long += int(np.sum(~alive & (state.visible_count >= config.min_track_length)))
-        state.ids, state.uv = state.ids[alive], state.uv[alive]
-        state.last_p_world, state.visible_count = state.last_p_world[alive], state.visible_count[alive]
-        observed_ids, observed_uv, observed_p = [state.ids[visible[alive]]], [state.uv[visible[alive]]], [p_world[visible][:, :]]
+        state.keep(alive)
+        observed_ids, observed_uv, observed_p = [state.ids[visible[alive]]], [state.uv[visible[alive]]], [p_world[visible]]
         if frame % config.reseed_every == 0:
             budget = min(config.max_alive - len(state.ids), config.max_tracks - len(state.ids) - state.finished_long)
             if budget > 0:
                 uv_new = _seed(gray, depth_m, allowed, state.uv, budget, config)
-                z_new = sample_depth(depth_m, uv_new, config.depth_window_px, config.depth_max_spread)
+                z_new = sample_depth(depth_m, uv_new, config.depth_window_px, config.depth_max_spread, config.subpixel_depth)
                 uv_new, z_new = uv_new[np.isfinite(z_new)], z_new[np.isfinite(z_new)]
                 p_new = transform_points(T_world_camera, lift(uv_new, z_new, K))
-                ids_new = np.arange(state.next_id, state.next_id + len(uv_new))
-                state.next_id += len(uv_new)
-                state.ids = np.concatenate([state.ids, ids_new])
-                state.uv = np.concatenate([state.uv, uv_new])
-                state.last_p_world = np.concatenate([state.last_p_world, p_new])
-                state.visible_count = np.concatenate([state.visible_count, np.ones(len(uv_new), np.int64)])
-                observed_ids.append(ids_new)
+                observed_ids.append(state.add(uv_new, p_new))
                 observed_uv.append(uv_new)
                 observed_p.append(p_new)
         log.append((np.concatenate(observed_ids).astype(np.int32), np.concatenate(observed_uv).astype(np.float32),

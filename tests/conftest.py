@@ -14,3 +14,16 @@ def tiny_capture(tmp_path_factory: pytest.TempPathFactory) -> Path:
     from funrec.synth import generate_sequence, tiny_spec
 
     return generate_sequence(tiny_spec(0), tmp_path_factory.mktemp("synth"))
+
+
+@pytest.fixture(scope="session")
+def smoke_captures(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """The rendered 320x240 smoke sequences (funrec.synth.smoke_suite): a cabinet door and a
+    drawer opened (75 frames each, hand masks) and a camera-only walk (45 frames, no masks),
+    Kinect-like depth noise, ground truth in gt/; ~1-2 min to generate, so only slow tests
+    use them."""
+    from funrec.synth import generate_sequence, smoke_suite
+
+    out = tmp_path_factory.mktemp("smoke")
+    specs = {spec.name: spec for spec in smoke_suite()}
+    return {name: generate_sequence(specs[name], out) for name in ("smoke_rev_00", "smoke_pri_00", "smoke_static_00")}

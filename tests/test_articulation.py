@@ -373,10 +373,74 @@ def test_axis_estimate_is_equivariant_under_rigid_motion(rotvec: np.ndarray, tra
     moved = estimate_articulation(PointTracks(p_new, tracks.uv, tracks.visible)).interacted
     base = EQUIVARIANCE_BASE
     assert moved is not None and base is not None and moved.joint_type == base.joint_type
-    # Every step is rigid-invariant and the rng is re-seeded identically, so only float64
-    # round-off separates the two runs.
-    np.testing.assert_allclose(moved.axis_world, T_new_world[:3, :3] @ base.axis_world, atol=1e-6)
+    # Every step is rigid-invariant and the rng is re-seeded identically, so only round-off
+    # separates the two runs; the joint is refined by iterative least squares (scipy
+    # least_squares, stopping at relative tolerances of 1e-8 or an evaluation cap), whose
+    # stopping point round-off moves by up to ~1e-4 (rad, m; 1.1e-4 m seen for the pivot):
+    # 1e-3 still fails any frame-dependent step, which would move the axis by degrees.
+    np.testing.assert_allclose(moved.axis_world, T_new_world[:3, :3] @ base.axis_world, atol=1e-3)
     pivot_new = T_new_world[:3, :3] @ base.pivot_world + T_new_world[:3, 3]
-    assert line_distance(moved.axis_world, moved.pivot_world, moved.axis_world, pivot_new) < 1e-6
-    np.testing.assert_allclose(moved.states, base.states, atol=1e-6)
+    assert line_distance(moved.axis_world, moved.pivot_world, moved.axis_world, pivot_new) < 1e-3
+    np.testing.assert_allclose(moved.states, base.states, atol=1e-3)
     np.testing.assert_array_equal(moved.track_indices, base.track_indices)
+
+
+# ----------------------------------------------------------------------------------------------
+# Rendered captures: stages 1, 2, 3 and 5 on funrec.synth's smoke door and drawer.
+
+RENDERED_TOL = {
+    # Measured on these two captures: door 3.8-5.3 deg, 1-10 mm, 0.3 deg; drawer 1.2-1.9 deg,
+    # 1-2 mm. The door turns edge-on to the camera after 0.42 rad, so its axis rests on ~0.4 rad
+    # of arc seen by ~40 short tracks; the limits leave ~1.5x margin over the measurements.
+    "revolute": {"axis_deg": 8.0, "pivot_m": 0.03, "state": np.deg2rad(2.0)},
+    "prismatic": {"axis_deg": 3.0, "state": 0.01},
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["smoke_rev_00", "smoke_pri_00"])
+def test_rendered_capture_joint_against_ground_truth(smoke_captures, name: str) -> None:
+    from funrec import metrics
+    from funrec.capture import load_capture
+    from funrec.ground_truth import read_ground_truth
+    from funrec.part_motion import refine_part_motion
+    from funrec.point_tracks import track_points
+    from funrec.tracking import track_camera
+
+    capture = load_capture(smoke_captures[name])
+    truth = read_ground_truth(smoke_captures[name] / "gt")
+    tracks = track_points(capture, track_camera(capture))
+    evidence = InteractionEvidence.from_hand_masks(lambda frame: capture.mask("hand", frame), np.ones(len(capture)))
+    estimate = estimate_articulation(tracks, evidence)
+    assert estimate.parts, "no part found"
+    motion = refine_part_motion(tracks, estimate.parts[0])
+    true_part = truth.parts[0].part
+    # The pipeline's world is camera 0; the ground truth's is its own: map through frame 0.
+    T_camera0_world = invert_transform(truth.T_world_camera[0])
+    axis_true = T_camera0_world[:3, :3] @ true_part.axis_world
+    pivot_true = None if true_part.pivot_world is None else T_camera0_world[:3, :3] @ true_part.pivot_world + T_camera0_world[:3, 3]
+    spec = PartSpec(true_part.joint_type, axis_true, pivot_true, np.asarray(true_part.states), np.zeros((4, 3)), np.zeros(3),
+                    np.zeros(0, np.int64))
+    assert motion.joint_type == spec.joint_type
+    err = errors(motion, spec)
+    if spec.joint_type == "revolute":  # FORMATS.md section 5: the distance between the two axis lines
+        err["pivot_m"] = metrics.line_distance(motion.pivot_world, motion.axis_world, pivot_true, axis_true)
+    tol = RENDERED_TOL[spec.joint_type]
+    assert all(err[key] < tol[key] for key in tol), (err, tol)
+    # Tracked while it moved: the drawer's front is hidden by the arm until it has come out a
+    # little, so the part may start inside the interaction, not before it.
+    first, last = truth.parts[0].intervals[0]
+    assert motion.frames[0] < last and motion.frames[-1] > first, (motion.frames[[0, -1]], (first, last))
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(reason="known weakness: without hand masks, KLT drift of static tracks under a fast-walking camera "
+                   "(0.25 m per frame in smoke_static_00) still forms one coherent 6 cm 'drawer' (see the stage-3 report)",
+                   strict=False)
+def test_rendered_camera_only_capture_has_no_part(smoke_captures) -> None:
+    from funrec.capture import load_capture
+    from funrec.point_tracks import track_points
+    from funrec.tracking import track_camera
+
+    capture = load_capture(smoke_captures["smoke_static_00"])
+    assert estimate_articulation(track_points(capture, track_camera(capture))).parts == ()
