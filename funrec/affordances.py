@@ -28,7 +28,7 @@ with the part at its canonical state (state 0, the pose of ``meshes/part_k.ply``
 
 - ``contact_point``: the centre of the handle the hand held (``handle_found``: the piece of
   geometry standing out of the front nearest to the hand's contact; on a handle longer than
-  35 cm the centre of its part near the hand), else the centre of the contact core.
+  35 cm the point of its axis level with the hand), else the centre of the contact core.
 - ``T_world_grasp``: origin at the contact point; z is the approach direction, from the hand's
   side into the part's front surface (minus the outward surface normal); x runs along the
   handle (principal direction of the handle geometry, or a fallback, see
@@ -154,10 +154,8 @@ class AffordanceConfig:
     """A handle piece up to this long (along its principal direction) gives the contact at its
     centre: the first estimate's error runs mostly along the handle (2-4 cm on the synthetic
     bench), while its centre is where a hand or gripper holds it best. On a longer handle (an
-    oven bar, a fridge's long bar) the contact is the centre of its part within
-    ``handle_radius_m`` of the first estimate, where the hand was."""
-    handle_radius_m: float = 0.06
-    """See ``max_handle_length_m``."""
+    oven bar, a fridge's long bar), or one that reaches out of ``search_radius_m``, the contact
+    is the point of the handle's axis level with the hand's far end, where the hand was."""
     handle_min_height_m: float = 0.008
     """Points standing this far out of the front plane are handle geometry (bars stand 3 cm out,
     knobs 3 cm, recessed grips' lips 1-2 cm; 8 mm is above the fit noise)."""
@@ -198,7 +196,7 @@ class AffordanceConfig:
 
     def __post_init__(self) -> None:
         positive = (self.surface_spacing_m, self.distal_band_m, self.contact_distance_m, self.hold_radius_m,
-                    self.search_radius_m, self.front_cell_m, self.plane_tolerance_m, self.handle_radius_m, self.handle_link_m)
+                    self.search_radius_m, self.front_cell_m, self.plane_tolerance_m, self.handle_link_m)
         if min(positive) <= 0 or not 0.0 < self.distal_quantile <= 1.0 or self.hand_stride_px < 1:
             raise ValueError(f"AffordanceConfig needs positive lengths, 0 < distal_quantile <= 1 and hand_stride_px >= 1, got {self}")
         if not 0.0 < self.vote_top_fraction <= 1.0 or not 0.0 < self.region_fraction <= 1.0 or self.path_samples < 2:
@@ -658,15 +656,21 @@ def _grasp(
     plane_points = front[inliers]
     height = (front - origin) @ normal
     candidate = (height > config.handle_min_height_m) & (height < config.handle_max_height_m)
-    handle = _nearest_piece(front[candidate], c_first, config)
+    handle = _nearest_handle(front[candidate], c_first, config)
     handle_found = len(handle) >= config.min_handle_points
     contact = c_first
     if handle_found:
-        along = (handle - handle.mean(axis=0)) @ _principal_direction(handle)
-        if np.ptp(along) > config.max_handle_length_m:
-            local = handle[np.linalg.norm(handle - c_first, axis=1) < config.handle_radius_m]
-            handle = local if len(local) >= config.min_handle_points else handle
-        contact = handle.mean(axis=0)
+        centre, direction = handle.mean(axis=0), _principal_direction(handle)
+        along = (handle - centre) @ direction
+        # The middle of the handle's extent, not the mean of its points: the fused part may
+        # lack a stretch of the handle that the hand hid.
+        contact = centre + 0.5 * (along.min() + along.max()) * direction
+        cut = np.linalg.norm(handle - c_first, axis=1).max() > config.search_radius_m - 2 * config.handle_link_m
+        if cut or np.ptp(along) > config.max_handle_length_m:  # long, or reaching out of the search
+            # Where the hand was along the handle: its far end is centred on the grip (the
+            # fingers wrap the bar on both sides), closer than the surface votes when the
+            # fused part has a hole under the hand (measured: 0.5 cm against 2.7 cm).
+            contact = centre + np.clip((p_hand - centre) @ direction, along.min(), along.max()) * direction
     z = -normal
     x = _handle_axis(part, handle if handle_found else np.zeros((0, 3)), plane_points, z, config)
     y = np.cross(z, x)
@@ -728,22 +732,33 @@ def _plane_ransac(p: FloatArray, config: AffordanceConfig, rng: np.random.Genera
     return centre, normal, inliers
 
 
-def _nearest_piece(p: FloatArray, c: FloatArray, config: AffordanceConfig) -> FloatArray:
-    """The piece of (N, 3) points (linked by distances below ``handle_link_m``, at least
-    ``min_handle_points``) that comes nearest to ``c``; (0, 3) if there is none."""
+def _nearest_handle(p: FloatArray, c: FloatArray, config: AffordanceConfig) -> FloatArray:
+    """The handle among (N, 3) handle-height points: the piece (linked by distances below
+    ``handle_link_m``, at least ``min_handle_points``) that comes nearest to ``c``, joined by the
+    pieces lying along its axis when it is elongated (within ``handle_link_m`` of the line: one
+    bar that the hand's hole in the fused part split). (0, 3) if there is none."""
     if len(p) < config.min_handle_points:
         return np.zeros((0, 3))
     pairs = cKDTree(p).query_pairs(config.handle_link_m, output_type="ndarray")
     graph = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(p), len(p)))
     _, label = connected_components(graph, directed=False)
     size = np.bincount(label)
-    distance = np.linalg.norm(p - c, axis=1)
     nearest = np.full(len(size), np.inf)
-    np.minimum.at(nearest, label, distance)
+    np.minimum.at(nearest, label, np.linalg.norm(p - c, axis=1))
     nearest[size < config.min_handle_points] = np.inf
     if not np.isfinite(nearest).any():
         return np.zeros((0, 3))
-    return p[label == int(np.argmin(nearest))]
+    first = p[label == int(np.argmin(nearest))]
+    centre, direction = first.mean(axis=0), _principal_direction(first)
+    spread = np.linalg.eigvalsh(np.cov((first - centre).T)) if len(first) > 3 else np.zeros(3)
+    if not spread[2] > config.handle_anisotropy**2 * spread[1]:
+        return first  # a knob or a blob has no axis to extend along
+    offset = p - centre
+    off_axis = np.linalg.norm(offset - np.outer(offset @ direction, direction), axis=1)
+    median_off_axis = np.full(len(size), np.inf)
+    for piece in np.flatnonzero(size >= config.min_handle_points):
+        median_off_axis[piece] = np.median(off_axis[label == piece])
+    return p[median_off_axis[label] < config.handle_link_m]
 
 
 def _principal_direction(p: FloatArray) -> FloatArray:

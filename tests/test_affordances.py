@@ -370,6 +370,35 @@ def test_tiny_capture_contact_is_at_the_true_handle(tiny_capture: Path, tmp_path
     assert score.interval_iou > 0.6
 
 
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_metric_moves_the_true_handle_to_the_twin_canonical_state(tiny_capture: Path, tmp_path: Path, sign: float) -> None:
+    """A twin whose canonical state is mid-opening (and whose axis may point the other way),
+    in a world frame that is not camera 0, with the contact exactly at the true handle there."""
+    from funrec.geometry.transforms import invert_transform
+    from funrec.ground_truth import read_ground_truth
+
+    gt = read_ground_truth(tiny_capture / "gt")
+    (truth,) = gt.parts
+    true = truth.part
+    T_twin_world = make_transform(Rotation.from_euler("zyx", [30, 20, -50], degrees=True).as_matrix(), [1.0, 0.5, -0.2]) @ invert_transform(gt.T_world_camera[0])
+    first = int(np.flatnonzero(true.states > 0.3)[0])
+    T_true_first = joint_transform(true.joint_type, true.axis_world, true.pivot_world, true.states[first])
+    points = np.asarray(trimesh.load(str(gt.points_path(true.name))).vertices)
+    surface = transform_points(T_twin_world @ T_true_first, points)
+    part = make_part(true.name, true.joint_type, sign * (T_twin_world[:3, :3] @ true.axis_world),
+                     transform_points(T_twin_world, true.pivot_world[None])[0], true.frames[first:], sign * (true.states[first:] - true.states[first]))
+    contact = transform_points(T_twin_world @ T_true_first, truth.handle_world[None])[0]
+    held = np.concatenate([np.arange(a, b + 1) for a, b in truth.intervals])
+    affordance = PartAffordance(part.name, part.joint_type, contact, make_transform(np.eye(3), contact), True,
+                                (Interaction(held, held / 15.0, np.zeros(len(held))),), np.zeros((0, 3)), np.zeros(0), np.zeros(2), np.tile(contact, (2, 1)))
+    trajectory = CameraTrajectory(T_twin_world @ gt.T_world_camera, np.zeros(0, np.int64), np.ones(gt.frame_count, bool))
+    twin = _write_twin(tmp_path / "twin", tiny_capture, trajectory, [part], [surface], Affordances((affordance,), (), "capture", 15.0))
+    (score,) = evaluate_affordances(twin, tiny_capture / "gt").parts
+    # camera_poses.txt stores 6-decimal translations and 7-decimal quaternions: ~1 um here.
+    assert score.contact_error_m == pytest.approx(0.0, abs=1e-5)
+    assert score.interval_iou == 1.0
+
+
 def test_metric_fails_every_part_of_an_unreadable_twin(tiny_capture: Path, tmp_path: Path) -> None:
     evaluation = evaluate_affordances(tmp_path / "nothing", tiny_capture / "gt")
     assert evaluation.failure is not None and evaluation.fraction_within_tolerance == 0.0

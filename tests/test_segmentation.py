@@ -1,8 +1,10 @@
-"""Tests of funrec.segmentation: mask storage, input validation, and mask IoU against synthetic
-ground truth when the stage is fed true camera poses, part poses and track labels."""
+"""Tests of funrec.segmentation and funrec.motion_evidence: mask storage, input validation, track
+and pixel motion evidence on known geometry, and mask IoU against synthetic ground truth when the
+stage is fed true inputs and when it is fed the estimates of stages 1, 2, 3 and 5."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +19,7 @@ from funrec.geometry.camera import backproject, project
 from funrec.geometry.joints import joint_transforms
 from funrec.geometry.transforms import invert_transform, transform_points
 from funrec.ground_truth import GroundTruth, read_ground_truth
+from funrec.part_motion import PartMotion
 from funrec.point_tracks import PointTracks
 from funrec.segmentation import PartMasks, SegmentationConfig, decode_mask, encode_mask, segment_parts
 from funrec.tracking import CameraTrajectory
@@ -144,8 +147,10 @@ def test_segment_parts_validates_inputs(small_sequence: Path) -> None:
         segment_parts(capture, trajectory, tracks, moving[:-1], frames, T_world_part[frames])
     with pytest.raises(ValueError, match="frames must lie in"):
         segment_parts(capture, trajectory, tracks, moving, frames + len(capture), T_world_part[frames])
+    # Evidence comes from the part's motion, not from the caller's track labels: a part whose
+    # poses never change has no pixels, whatever the labels say.
     with pytest.raises(ReconstructionError, match="no part pixels"):
-        segment_parts(capture, trajectory, tracks, np.zeros_like(moving), frames, T_world_part[frames])
+        segment_parts(capture, trajectory, tracks, moving, frames, np.tile(np.eye(4), (len(frames), 1, 1)))
 
 
 def test_segment_parts_reaches_target_iou_with_true_inputs(small_sequence: Path) -> None:
@@ -157,8 +162,11 @@ def test_keyframe_count_is_respected(small_sequence: Path) -> None:
     capture, gt, trajectory, frames, T_world_part = true_inputs(small_sequence)
     tracks, moving = simulate_tracks(capture, gt, T_world_part, grid_px=24, seed_every=10)
     config = SegmentationConfig(keyframe_count=3)
-    masks = segment_parts(capture, trajectory, tracks, moving, frames[:12], T_world_part[frames[:12]], config)
-    assert len(masks.keyframes) == 3 and masks.keyframes[0] == frames[0] and masks.keyframes[-1] == frames[11]
+    # Twelve frames around the opening: evidence needs the part to move within them.
+    first, _ = gt.parts[0].intervals[0]
+    window = frames[(frames >= first - 4) & (frames < first + 8)]
+    masks = segment_parts(capture, trajectory, tracks, moving, window, T_world_part[window], config)
+    assert len(masks.keyframes) == 3 and masks.keyframes[0] == window[0] and masks.keyframes[-1] == window[-1]
 
 
 @pytest.mark.slow
@@ -167,3 +175,134 @@ def test_segment_parts_iou_at_full_resolution(request: pytest.FixtureRequest, na
     root = synth_sequence(request.config.cache.mkdir("funrec_synth"), name, seed, part, 60, 640, 480)
     miou = check_miou(root, grid_px=24)
     assert miou >= TARGET_MIOU, f"{name}: mIoU {100 * miou:.1f} below {100 * TARGET_MIOU:.0f}"
+
+
+# ----------------------------------------------------------------------------------------------
+# Motion evidence on known geometry.
+
+def _translation(t_world: np.ndarray) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, 3] = t_world
+    return T
+
+
+def test_classify_tracks_decides_only_where_the_part_moved() -> None:
+    """Prismatic part resting for 16 frames, then moving 0.1 m per frame along x for 4 frames.
+    Depth-like noise of 2 mm (well below the 2 cm tolerances) on every observation."""
+    from funrec.motion_evidence import classify_tracks
+
+    F = 20
+    states = np.concatenate([np.zeros(16), [0.1, 0.2, 0.3, 0.4]])
+    T_world_part = np.stack([_translation([s, 0.0, 0.0]) for s in states])
+    rng = np.random.default_rng(0)
+    p_static, p_part = np.array([0.5, 0.0, 2.0]), np.array([0.0, 0.2, 2.0])
+    trajectories = {
+        "static, seen throughout": (np.tile(p_static, (F, 1)), np.ones(F, bool), -1),
+        # Moves for 4 of its 20 frames: a 90th-percentile spread alone would miss it.
+        "part, seen throughout": (p_part + states[:, None] * [1, 0, 0], np.ones(F, bool), 1),
+        "part, seen only at rest": (np.tile(p_part, (F, 1)), np.arange(F) < 12, 0),
+        "static, seen only at rest": (np.tile(p_static, (F, 1)), np.arange(F) < 12, 0),
+        # A hand shadow: wanders while the part rests, then follows the part as the hand pulls.
+        "shadow": (p_part + np.where(np.arange(F)[:, None] < 16, np.arange(F)[:, None] * [0, 0.01, 0],
+                                     states[:, None] * [1, 0, 0] + [0, 0.16, 0]), np.ones(F, bool), 0),
+    }
+    p_world = np.stack([p for p, _, _ in trajectories.values()], axis=1) + rng.normal(0, 0.002, (F, len(trajectories), 3))
+    visible = np.stack([v for _, v, _ in trajectories.values()], axis=1)
+    p_world[~visible] = np.nan
+    tracks = PointTracks(p_world, np.zeros((F, len(trajectories), 2)), visible)
+    labels = classify_tracks(tracks, np.arange(F), T_world_part, np.zeros(len(trajectories), bool), 0.02, 0.02)
+    assert dict(zip(trajectories, labels.labels.tolist())) == {k: v for k, (_, _, v) in trajectories.items()}
+    # The part track's canonical place is where it rests, 2 mm noise aside.
+    np.testing.assert_allclose(labels.p_part[1], p_part, atol=0.005)
+    np.testing.assert_allclose(labels.p_anchor, p_part, atol=0.005)
+
+
+def _plane_depth(K: np.ndarray, shape: tuple[int, int], plate_centre: np.ndarray, plate_half_m: float, wall_z_m: float
+                 ) -> np.ndarray:
+    """(H, W) depth of a fronto-parallel square plate in front of a fronto-parallel wall."""
+    H, W = shape
+    v, u = np.mgrid[0:H, 0:W]
+    x, y = (u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1]
+    z = plate_centre[2]
+    on_plate = (np.abs(x * z - plate_centre[0]) < plate_half_m) & (np.abs(y * z - plate_centre[1]) < plate_half_m)
+    return np.where(on_plate, z, wall_z_m).astype(np.float32)
+
+
+def test_depth_evidence_finds_the_moved_plate_and_the_static_wall() -> None:
+    """A 0.4 m plate at 2 m in front of a wall at 3 m moves by (0.5, 0, -0.4) m (sideways and
+    towards the camera). Plate pixels see the wall through their old place and the plate at their
+    new one: part. Wall pixels moved with the plate would float 0.4 m in front of the wall: static."""
+    from funrec.motion_evidence import DepthReference, depth_evidence
+
+    K = np.array([[60.0, 0.0, 39.5], [0.0, 60.0, 29.5], [0.0, 0.0, 1.0]])
+    shape = (60, 80)
+    move = np.array([0.5, 0.0, -0.4])
+    depth_0 = _plane_depth(K, shape, np.array([0.0, 0.0, 2.0]), 0.2, 3.0)
+    depth_1 = _plane_depth(K, shape, np.array([0.0, 0.0, 2.0]) + move, 0.2, 3.0)
+    no_hand = np.zeros(shape, bool)
+    reference = DepthReference.from_frame(depth_1, no_hand, np.eye(4), _translation(move), frame=1)
+    part, static = depth_evidence(depth_0, no_hand, K, np.eye(4), np.eye(4), [reference], (0.02, 2.0))
+    plate = depth_0 < 2.5
+    assert not (part & ~plate).any() and not (static & plate).any()
+    assert part[plate].mean() > 0.9, part[plate].mean()
+    # Wall pixels whose moved place hides behind the moved plate stay undecided.
+    assert static[~plate].mean() > 0.5, static[~plate].mean()
+
+
+# ----------------------------------------------------------------------------------------------
+# Estimated inputs: stages 1, 2, 3 and 5 on funrec.synth's smoke door and drawer (320x240).
+
+ESTIMATED_MIN_MIOU = {"smoke_rev_00": 0.65, "smoke_pri_00": 0.80}
+"""Measured with the stages of this commit: door 0.73, drawer 0.87 (bench 640x480: 78-95). The
+door's estimate stops at 0.47 of its 1.5 rad (stage 2/3 lose it when it turns edge-on), so its
+hinge half only moves a few centimetres; the limits leave ~7 points for upstream changes."""
+
+
+def smoke_sequence(cache_root: Path, name: str) -> Path:
+    """Generate (once, cached across test runs) one sequence of funrec.synth's smoke suite."""
+    synth = pytest.importorskip("funrec.synth")
+    spec = next(s for s in synth.smoke_suite() if s.name == name)
+    if not synth.is_complete(cache_root / name):
+        synth.generate_sequence(spec, cache_root)
+    return next(p.parent for p in (cache_root / name).rglob("intrinsics.json"))
+
+
+@dataclass(frozen=True)
+class EstimatedRun:
+    """Stages 1-5 on a rendered capture, as funrec.pipeline runs them."""
+
+    name: str
+    capture: Capture
+    gt: GroundTruth
+    trajectory: CameraTrajectory
+    motion: PartMotion
+    masks: PartMasks
+
+
+@pytest.fixture(scope="session", params=["smoke_rev_00", "smoke_pri_00"])
+def estimated_run(request: pytest.FixtureRequest) -> EstimatedRun:
+    """~1 min per capture (plus ~45 s to generate it the first time)."""
+    from funrec.articulation import InteractionEvidence, estimate_articulation
+    from funrec.part_motion import refine_part_motion
+    from funrec.point_tracks import track_points
+    from funrec.tracking import track_camera
+
+    capture = load_capture(smoke_sequence(request.config.cache.mkdir("funrec_synth"), request.param))
+    trajectory = track_camera(capture)
+    tracks = track_points(capture, trajectory)
+    evidence = InteractionEvidence.from_hand_masks(lambda frame: capture.mask("hand", frame), np.ones(len(capture)))
+    estimate = estimate_articulation(tracks, evidence)
+    assert estimate.parts, "no part found"
+    motion = refine_part_motion(tracks, estimate.parts[0])
+    moving = np.zeros(tracks.num_tracks, dtype=bool)
+    moving[estimate.parts[0].track_indices] = True
+    masks = segment_parts(capture, trajectory, tracks, moving, motion.frames, motion.T_world_part)
+    return EstimatedRun(request.param, capture, read_ground_truth(capture.root / "gt"), trajectory, motion, masks)
+
+
+@pytest.mark.slow
+def test_segment_parts_iou_with_estimated_inputs(estimated_run: EstimatedRun) -> None:
+    name = estimated_run.name
+    miou, count = mean_iou(estimated_run.masks, estimated_run.gt, estimated_run.capture)
+    assert count >= 20, f"{name}: only {count} tracked frames show the part"
+    assert miou >= ESTIMATED_MIN_MIOU[name], f"{name}: mIoU {100 * miou:.1f} below {100 * ESTIMATED_MIN_MIOU[name]:.0f}"
