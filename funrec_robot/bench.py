@@ -76,6 +76,8 @@ def bench_suite(
     plan_config = PlanConfig() if plan_config is None else plan_config
     check_config = CheckConfig() if check_config is None else check_config
     robot = load_robot(robot_path)
+    if plans_dir is not None:
+        Path(plans_dir).mkdir(parents=True, exist_ok=True)
     retime_path([[0.0], [1.0]], [1.0], [1.0])  # pays toppra's one-time import before any plan is timed
     rows = []
     for gt_json in sorted(Path(suite).glob("*/gt/gt.json")):

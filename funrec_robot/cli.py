@@ -122,9 +122,10 @@ def _cmd_check(args: argparse.Namespace) -> int:
     if args.no_force_limit:
         config = dataclasses.replace(config, max_handle_force=None)
     robot = None if args.robot is None else resolve_robot(args.robot)
+    from funrec_robot.check_record import write_check_record
+
     report = check_plan_file(args.plan, args.scene, args.joint, args.gt, robot, config, args.video)
-    report_path = args.report if args.report is not None else Path(args.plan).with_suffix(".check.json")
-    Path(report_path).write_text(json.dumps(report.to_json(), indent=1) + "\n")
+    report_path = write_check_record(report, args.plan, args.report)
     verdict = "PASS" if report.passed else "FAIL (" + ", ".join(f"{f.criterion} at {f.time:.2f} s" for f in report.failures) + ")"
     print(
         f"{verdict}: {report.joint} ended at {report.final_state:.3f} (target {report.target_state:.3f}), peak handle force "
@@ -150,6 +151,52 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         f"{summary['median_plan_time_s']:.2f} s; peak handle force median {summary['median_peak_handle_force_N']:.1f} N, "
         f"max {summary['max_peak_handle_force_N']:.1f} N; plans with collisions {summary['plans_with_collisions']}"
     )
+    return 0
+
+
+def _cmd_replay(args: argparse.Namespace) -> int:
+    from funrec.offscreen import ensure_gl_backend
+
+    if not args.no_video:
+        ensure_gl_backend()  # before mujoco is imported: headless video
+    from funrec_robot.catalog import resolve_robot
+    from funrec_robot.replay import replay_twin
+
+    def show(step: Any) -> None:
+        hold = step.interaction
+        status = "PASS" if step.passed else ("FAIL" if step.planned else "NO PLAN")
+        print(f"{hold.t_start:7.2f} s  {hold.part:8s} hold {hold.index}  {status:7s} {step.failure[:110]}")
+
+    output = args.output if args.output is not None else Path(args.twin) / "replay"
+    report = replay_twin(resolve_robot(args.robot), args.twin, output, args.gt, video=not args.no_video, progress=show)
+    print(f"{report['passed']}/{report['interactions']} interactions passed; report {output / 'replay.json'}"
+          + (f", video {report['video']}" if report["video"] else ""))
+    return 0 if report["all_passed"] else EXIT_CHECK_FAILED
+
+
+def _cmd_send(args: argparse.Namespace) -> int:
+    from funrec_robot.driver import send_plan
+
+    result = send_plan(args.plan, args.to, timeout=args.timeout)
+    print(f"{result.event}: {result.detail} ({result.wall_time:.1f} s, plan {result.plan_id[:12]})")
+    return 0 if result.event == "done" else EXIT_CHECK_FAILED
+
+
+def _cmd_serve_sim(args: argparse.Namespace) -> int:
+    from funrec.config import config_from_args
+    from funrec_robot.catalog import resolve_robot
+    from funrec_robot.robot import load_robot
+    from funrec_robot.sim_server import SimServerConfig, make_sim_server
+
+    server = make_sim_server(load_robot(resolve_robot(args.robot)), args.scene, config_from_args(SimServerConfig, args))
+    host, port = server.server_address[:2]
+    print(f"serving {server.sim.robot.name} (funrec-robot/1) on {host}:{port}; Ctrl-C to stop", flush=True)
+    try:
+        server.serve_forever()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.server_close()
     return 0
 
 
@@ -220,7 +267,56 @@ def _add_bench(sub: Any) -> None:
     p.set_defaults(handler=_cmd_bench)
 
 
-_COMMANDS: tuple[Callable[[Any], None], ...] = (_add_robots, _add_describe, _add_plan, _add_check, _add_bench)
+def _add_replay(sub: Any) -> None:
+    p = sub.add_parser(
+        "replay",
+        help="plan and check every interaction demonstrated in a twin, in order",
+        description="For each hold in the twin's affordances.json, in time order, plan the demonstrated joint "
+        "trajectory (--to demo) from the state it started at and check it in the twin (or in --gt's true scene). "
+        "Writes the plans with their check records, replay.json and one replay.mp4; exit 3 unless all pass.",
+    )
+    p.add_argument("twin", type=Path, help="twin folder (articulation.json, affordances.json, twin.xml)")
+    p.add_argument("--robot", default=_default_robot(), help="robot YAML file or name (default: %(default)s)")
+    p.add_argument("--gt", type=Path, help="ground-truth folder: check in its scene.xml, mapping the twin through camera 0")
+    p.add_argument("-o", "--output", type=Path, help="output folder (default: TWIN/replay)")
+    p.add_argument("--no-video", action="store_true", help="do not render the video")
+    p.set_defaults(handler=_cmd_replay)
+
+
+def _add_send(sub: Any) -> None:
+    p = sub.add_parser(
+        "send",
+        help="send a checked plan to a robot endpoint and run it",
+        description="Refuses a plan without a passing check record of its exact bytes (PLAN.check.json from "
+        "`funrec-robot check`). Uploads it, starts it, sends heartbeats and waits for the end. ADDRESS: host:port "
+        "of a funrec-robot/1 endpoint (e.g. serve-sim) or ros2://NAMESPACE (FollowJointTrajectory; needs rclpy). "
+        "Exit 0 when the robot reports done, 3 when it stopped or faulted.",
+    )
+    p.add_argument("plan", type=Path, help="plan.json (its .check.json beside it)")
+    p.add_argument("--to", required=True, metavar="ADDRESS", help="endpoint: host:port, tcp://host:port or ros2://NAMESPACE")
+    p.add_argument("--timeout", type=float, help="stop the robot after this many seconds (default: duration + 30 s)")
+    p.set_defaults(handler=_cmd_send)
+
+
+def _add_serve_sim(sub: Any) -> None:
+    from funrec.config import add_config_arguments
+    from funrec_robot.sim_server import SimServerConfig
+
+    p = sub.add_parser(
+        "serve-sim",
+        help="a simulated robot endpoint (funrec-robot/1 over TCP) that runs plans in MuJoCo in real time",
+        description="Listen for funrec-robot/1 clients (docs/robot_protocol.md): upload, start, stop, state stream, "
+        "heartbeat. Plans are validated against this robot file's limits and run on its servos in real time.",
+    )
+    p.add_argument("--robot", default=_default_robot(), help="robot YAML file or name (default: %(default)s)")
+    p.add_argument("--scene", type=Path, help="MJCF scene to stand the robot in (default: an empty world)")
+    add_config_arguments(p, SimServerConfig)
+    p.set_defaults(handler=_cmd_serve_sim)
+
+
+_COMMANDS: tuple[Callable[[Any], None], ...] = (
+    _add_robots, _add_describe, _add_plan, _add_check, _add_bench, _add_replay, _add_send, _add_serve_sim,
+)
 
 
 def build_parser() -> argparse.ArgumentParser:

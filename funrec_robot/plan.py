@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -53,6 +54,11 @@ from funrec_robot.trajopt import PlacementConfig, PlacementProblem, place_base
 from funrec_robot.whole_body import whole_body_configurations
 
 log = logging.getLogger(__name__)
+
+REACH_CAP_FRACTION = 0.75
+"""When 'open' / 'close' is capped at the arm's reach, the wrist stays within this fraction of the reach limit
+above or below the shoulder: at the limit itself the whole-body IK misses the handle by ~9 cm on the bench's
+drop-down doors (the arm is stretched out sideways as well as down)."""
 
 PLANNER_VERSION = "funrec_robot.plan/1"
 """Written into every plan's provenance."""
@@ -185,6 +191,16 @@ def _demo_states(task: ArticulationTask, start: float, config: PlanConfig) -> Fl
     return np.array(kept)
 
 
+def _reachable_prefix(states: FloatArray, reachable: Callable[[FloatArray], bool]) -> int:
+    """Largest k such that ``reachable(states[:k])`` (0 if not even two states are): bisection, since a path
+    that is reachable stays reachable when shortened."""
+    low, high = 1, len(states)  # reachable(states[:low]) is assumed, states[:high] is known not to be
+    while high - low > 1:
+        mid = (low + high) // 2
+        low, high = (mid, high) if reachable(states[:mid]) else (low, mid)
+    return low if low >= 2 else 0
+
+
 def _slowed(trajectory: Trajectory, factor: float, dt: float) -> Trajectory:
     """The same motion ``factor`` times slower (velocities divided by it), resampled every ``dt``."""
     t = np.arange(int(np.ceil(trajectory.duration * factor / dt)) + 1) * dt
@@ -303,6 +319,18 @@ def plan_interaction(
     )
     r_max = geometry.reach * config.placement.r_max_fraction
     candidates = grasp_candidates(robot, task, states, geometry, r_max, config.grasp)
+    reach_capped = None
+    if not candidates and not demo and isinstance(target, str):
+        # 'open' / 'close' ask for the whole range; a drop-down door's full range takes its handle below the
+        # arm's reach. Open it as far as the arm reaches instead (recorded in the plan; a number is exact).
+        r_cap = r_max * REACH_CAP_FRACTION
+        reachable = _reachable_prefix(states, lambda prefix: bool(grasp_candidates(robot, task, prefix, geometry, r_cap, config.grasp)))
+        if reachable >= 2:
+            reach_capped = {"state": float(states[reachable - 1]), "requested": target_state}
+            log.warning("part '%s': the arm reaches the handle only up to %.3f %s of %.3f; planning that far",
+                        task.part, states[reachable - 1], task.unit, target_state)
+            states, target_state = states[:reachable], float(states[reachable - 1])
+            candidates = grasp_candidates(robot, task, states, geometry, r_max, config.grasp)
     if not candidates:
         raise PlanningError(
             f"part '{task.part}': the handle path leaves the arm's vertical reach from the shoulder "
@@ -394,9 +422,11 @@ def plan_interaction(
         "scene_file": str(scene_xml),
         "scene_sha256": sha256_file(scene_xml),
         "task_source": task.source,
+        "grasp_source": task.grasp_source,
         "task_files": {str(p): sha256_file(p) for p in task.source_files if Path(p).is_file()},
         "target": str(target),
         "target_blocked_at": None if capped is None else {"state": capped[0], "by": capped[1]},
+        "target_capped_by_reach": reach_capped,
         "grasp": {
             "depth_m": depth,
             "flip": bool(flip),

@@ -199,6 +199,16 @@ def read_plan(path: str | Path) -> Plan:
         data = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as exc:
         raise FormatError(path, f"cannot read plan: {exc}") from None
+    return plan_from_json(data, path)
+
+
+def plan_from_json(data: Any, path: str | Path = "<plan>") -> Plan:
+    """Validate a plan.json dictionary (e.g. received over the network) and build the :class:`Plan`.
+
+    Raises:
+        FormatError: not a funrec-plan/1 dictionary or a field of the wrong shape; names ``path`` and the field.
+    """
+    path = Path(path)
     if not isinstance(data, dict) or data.get("format") != PLAN_FORMAT:
         raise FormatError(path, f"not a plan file: format {data.get('format') if isinstance(data, dict) else None!r}, expected {PLAN_FORMAT!r}")
     names = tuple(data.get("joint_names", ()))
@@ -253,4 +263,4 @@ def read_plan(path: str | Path) -> Plan:
     return plan
 
 
-__all__ = ["PLAN_FORMAT", "SEGMENT_LABELS", "Plan", "Segment", "plan_to_json", "read_plan", "sha256_file", "write_plan"]
+__all__ = ["PLAN_FORMAT", "SEGMENT_LABELS", "Plan", "Segment", "plan_from_json", "plan_to_json", "read_plan", "sha256_file", "write_plan"]

@@ -176,6 +176,13 @@ def _footprints(
     return out
 
 
+def _colliding(model: mujoco.MjModel, geoms: npt.ArrayLike) -> IntArray:
+    """Those of ``geoms`` that take part in collisions: a twin's display mesh of the whole room
+    (contype = conaffinity = 0) would otherwise make one footprint covering the floor."""
+    geoms = np.asarray(geoms, dtype=np.int64)
+    return geoms[(model.geom_contype[geoms] != 0) | (model.geom_conaffinity[geoms] != 0)]
+
+
 def _posed_data(model: mujoco.MjModel, qpos: npt.ArrayLike | None = None) -> mujoco.MjData:
     data = mujoco.MjData(model)
     if qpos is not None:
@@ -207,7 +214,7 @@ def static_footprint(
     """
     data = _posed_data(model, qpos)
     keep = np.setdiff1d(np.arange(model.ngeom), np.asarray(exclude_geoms, dtype=np.int64))
-    keep = keep[model.geom_type[keep] != mujoco.mjtGeom.mjGEOM_PLANE]
+    keep = _colliding(model, keep[model.geom_type[keep] != mujoco.mjtGeom.mjGEOM_PLANE])
     centre, R, half = geom_boxes(model, data, keep)
     reach = np.linalg.norm(half, axis=1)
     near = np.linalg.norm(centre[:, :2] - np.asarray(centre_xy), axis=1) - reach < radius
@@ -225,7 +232,7 @@ def part_sweep_footprint(
     A revolute leaf sweeps a sector (convex for less than half a turn); the hull of its sampled boxes misses
     only the sagitta between samples, a few mm for the 4-degree spacing of the planner's paths.
     """
-    geoms = part_geoms(model, joint)
+    geoms = _colliding(model, part_geoms(model, joint))
     qadr = model.jnt_qposadr[joint]
     data = mujoco.MjData(model)
     per_geom: list[list[FloatArray]] = [[] for _ in geoms]

@@ -80,6 +80,9 @@ class ArticulationTask:
     """(K,) joint states of the demonstrated interaction, rad or m."""
     source: str = ""
     """Where the task came from, e.g. ``gt:bench_suite/rev_fridge_00/gt`` (recorded in plans)."""
+    grasp_source: str = "geometry"
+    """Where the contact point and grasp axes came from: 'geometry' (a scene's geoms), 'affordances'
+    (a twin's affordances.json) or 'mesh fallback (why)' (guessed from a twin's part mesh; recorded in plans)."""
     source_files: tuple[Path, ...] = ()
     """Files the task was read from (hashed into a plan's provenance)."""
 

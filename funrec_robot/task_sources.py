@@ -7,9 +7,9 @@ from. Both map the source's world frame into the frame of the scene the robot pl
 from __future__ import annotations
 
 import json
+import logging
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import mujoco
 import numpy as np
@@ -17,11 +17,13 @@ import numpy.typing as npt
 
 from funrec.errors import FormatError, PlanningError
 from funrec.ground_truth import GroundTruth, read_ground_truth
-from funrec.twin_format import read_articulation
+from funrec.twin_format import ArticulatedPart, read_articulation
 from funrec.typed import FloatArray
 from funrec_robot.errors import format_names
 from funrec_robot.scene import part_front, part_joint
 from funrec_robot.task import ArticulationTask
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -150,15 +152,56 @@ def task_from_ground_truth(
     )
 
 
-def _affordance_rows(path: Path) -> list[dict[str, Any]]:
+MESH_GRASP_INSET_M = 0.06
+"""Without affordances, a door is grasped this far in from its edge farthest from the hinge, m (where handles sit)."""
+MESH_FRONT_BAND_M = 0.01
+"""Without affordances, part points within this distance of the part's front-most point form its front, m."""
+
+
+def _mesh_grasp(root: Path, joint: ArticulatedPart) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Contact point, approach and handle axis guessed from a part's mesh when the twin has no affordance.
+
+    The front is the side of the part facing the cameras that tracked it (the mesh's thinnest principal
+    direction, signed towards them). A door is grasped on its front, ``MESH_GRASP_INSET_M`` in from the edge
+    farthest from the hinge, at the part's mid-height, with a handle along the hinge axis; a drawer in the
+    middle of its front with a handle across the motion.
+    """
+    import trimesh
+
+    from funrec.camera_poses import read_camera_poses
+
+    if joint.mesh is None:
+        raise PlanningError(f"{root}: part '{joint.name}' has neither an affordance nor a mesh to grasp it by")
+    mesh_path = root / joint.mesh
     try:
-        data = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise FormatError(path, f"cannot read: {exc}") from None
-    rows = data.get("parts") if isinstance(data, dict) else None
-    if not isinstance(rows, list):
-        raise FormatError(path, "expected an object with a 'parts' list")
-    return rows
+        p_world = np.asarray(trimesh.load(mesh_path, process=False).vertices, dtype=np.float64)
+    except (OSError, ValueError) as exc:
+        raise FormatError(mesh_path, f"cannot read the part mesh: {exc}") from None
+    if len(p_world) < 3:
+        raise PlanningError(f"{mesh_path}: part '{joint.name}' has {len(p_world)} mesh points, too few to grasp it by")
+    T_world_camera = read_camera_poses(root / "camera_poses.txt").T_world_camera
+    tracked = np.asarray(joint.frames, dtype=int)
+    tracked = tracked[(tracked >= 0) & (tracked < len(T_world_camera))]
+    p_world_viewer = T_world_camera[tracked if tracked.size else slice(None), :3, 3].mean(axis=0)
+    centre = p_world.mean(axis=0)
+    _, _, Vt = np.linalg.svd(p_world - centre, full_matrices=False)
+    normal = Vt[2] if float(Vt[2] @ (p_world_viewer - centre)) >= 0.0 else -Vt[2]
+    depth = (p_world - centre) @ normal
+    front = p_world[depth >= depth.max() - MESH_FRONT_BAND_M]
+    if joint.joint_type == "revolute":
+        handle_axis = joint.axis_world
+        radial = front - joint.pivot_world - np.outer((front - joint.pivot_world) @ handle_axis, handle_axis)
+        reach = np.linalg.norm(radial, axis=1)
+        edge = front[int(np.argmax(reach))]
+        towards_hinge = -radial[int(np.argmax(reach))]
+        towards_hinge -= normal * float(towards_hinge @ normal)  # stay on the front
+        towards_hinge /= max(float(np.linalg.norm(towards_hinge)), 1e-9)
+        contact = edge + MESH_GRASP_INSET_M * towards_hinge
+        contact = contact + handle_axis * float((centre - contact) @ handle_axis)
+    else:
+        contact = front.mean(axis=0)
+        handle_axis = np.cross(normal, joint.axis_world)
+    return contact, -normal, handle_axis
 
 
 def task_from_twin(
@@ -166,13 +209,15 @@ def task_from_twin(
     part: str | None = None,
     T_scene_twin: npt.ArrayLike | None = None,
     state_current: float = 0.0,
+    interaction: int = 0,
 ) -> ArticulationTask:
     """The task for one part of a reconstructed twin, from articulation.json and affordances.json.
 
-    affordances.json is read as ``{"parts": [{"name": NAME, "contact_point": [x, y, z],
-    "T_world_grasp": 4x4, "surface_offset": m (optional), "handle_width": m (optional)}]}`` in the twin's world frame, with the grasp
-    frame's z the approach direction and y the handle's long axis (the robot's grasp frame closes its
-    fingers across it: its x is this y).
+    affordances.json (``funrec-affordances/1``) is read through :func:`funrec.query.load_affordances`: the
+    contact point and grasp frame at the canonical state (z the approach, x along the handle: the robot's
+    grasp frame closes its fingers across it) and the demonstrated holds. A twin without affordances.json,
+    or whose affordances miss the part, falls back to a grasp guessed from the part's mesh
+    (``_mesh_grasp``), logs a warning and says so in ``task.source`` (hence in the plan's provenance).
 
     Args:
         twin_dir: twin folder (FORMATS.md section 2).
@@ -180,26 +225,38 @@ def task_from_twin(
         T_scene_twin: (4, 4) maps the twin's world frame into the scene the robot plans in (identity when
             planning in twin.xml itself).
         state_current: state of the part in the scene when the robot arrives, rad or m.
+        interaction: which demonstrated hold becomes the task's demonstration (0: the first).
 
     Raises:
-        FormatError: a missing or malformed file or field; PlanningError: unknown part.
+        FormatError: a missing or malformed file or field; PlanningError: unknown part or hold.
     """
+    from funrec.affordances import AFFORDANCES_FILE
+    from funrec.query import load_affordances
+
     root = Path(twin_dir)
-    articulation_path, affordances_path = root / "articulation.json", root / "affordances.json"
+    articulation_path, affordances_path = root / "articulation.json", root / AFFORDANCES_FILE
     twin = read_articulation(articulation_path)
     names = [p.name for p in twin.parts]
     joint = twin.parts[_pick_part(names, part, articulation_path)]
-    rows = [row for row in _affordance_rows(affordances_path) if isinstance(row, dict) and row.get("name") == joint.name]
-    if not rows:
-        raise FormatError(affordances_path, f"no affordance for part '{joint.name}'")
-    row = rows[0]
-    try:
-        p_contact = np.asarray(row["contact_point"], dtype=np.float64).reshape(3)
-        T_world_grasp = np.asarray(row["T_world_grasp"], dtype=np.float64).reshape(4, 4)
-    except (KeyError, ValueError, TypeError) as exc:
-        raise FormatError(affordances_path, f"part '{joint.name}': contact_point (3) and T_world_grasp (4x4) needed: {exc}") from None
+    affordance, why = None, f"{affordances_path} is missing"
+    if affordances_path.is_file():
+        affordances = load_affordances(root)
+        affordance = affordances.part(joint.name)
+        why = f"{affordances_path}: {dict(affordances.missing).get(joint.name, 'part not in the file')}"
+    demo_times, demo_states = np.zeros(0), np.zeros(0)
+    if affordance is not None:
+        p_contact = affordance.contact_point
+        approach, handle_axis = affordance.T_world_grasp[:3, 2], affordance.T_world_grasp[:3, 0]
+        if not 0 <= interaction < len(affordance.interactions):
+            raise PlanningError(f"{affordances_path}: part '{joint.name}' has {len(affordance.interactions)} hold(s), no hold {interaction}")
+        hold = affordance.interactions[interaction]
+        demo_times, demo_states = hold.times_s - hold.times_s[0], hold.states
+        source, files = f"twin:{root.resolve()}", (articulation_path, affordances_path)
+    else:
+        log.warning("part '%s': no affordance (%s); grasping it where its mesh suggests a handle", joint.name, why)
+        p_contact, approach, handle_axis = _mesh_grasp(root, joint)
+        source, files = f"twin:{root.resolve()}", (articulation_path,)
     T = np.eye(4) if T_scene_twin is None else np.asarray(T_scene_twin, dtype=np.float64)
-    offset = row.get("surface_offset")
     return ArticulationTask(
         part=joint.name,
         joint_type=joint.joint_type,
@@ -208,12 +265,13 @@ def task_from_twin(
         state_range=joint.state_range,
         state_current=state_current,
         p_world_contact=_transform_point(T, p_contact),
-        approach_world=_transform_vector(T, T_world_grasp[:3, 2]),
-        handle_axis_world=_transform_vector(T, T_world_grasp[:3, 1]),
-        surface_offset=float(offset) if isinstance(offset, (int, float)) else None,
-        handle_width=float(row["handle_width"]) if isinstance(row.get("handle_width"), (int, float)) else None,
-        source=f"twin:{root}",
-        source_files=(articulation_path, affordances_path),
+        approach_world=_transform_vector(T, approach),
+        handle_axis_world=_transform_vector(T, handle_axis),
+        demo_times=demo_times,
+        demo_states=demo_states,
+        source=source,
+        grasp_source="affordances" if affordance is not None else f"mesh fallback ({why})",
+        source_files=files,
     )
 
 

@@ -4,7 +4,6 @@ timed plans within the robot's limits, plan.json round trip, errors that name wh
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 
 import mujoco
@@ -15,6 +14,7 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 from test_plan_scenes import PRISMATIC_CASE, REVOLUTE_CASE, write_gt_scene
 
+from funrec.affordances import Affordances, Interaction, PartAffordance, write_affordances
 from funrec.errors import FunrecError, PlanningError
 from funrec.twin_format import TwinArticulation, make_part, write_articulation
 from funrec_robot import build_mujoco_model, default_robot_path, load_robot, robot_indices
@@ -132,24 +132,68 @@ def test_targets_outside_the_range_are_refused_with_the_range(scenes) -> None:
         resolve_target(task, "ajar")
 
 
+def _fixture_affordance(name: str, contact: list[float], T_world_grasp: np.ndarray, states: list[float]) -> PartAffordance:
+    """A hand-written affordance (test fixture, not a reconstruction): one hold over ``states`` at 10 fps."""
+    n = len(states)
+    return PartAffordance(
+        name, "revolute", np.asarray(contact, dtype=float), T_world_grasp, True,
+        (Interaction(np.arange(4, 4 + n), (4 + np.arange(n)) / 10.0, np.asarray(states, dtype=float)),),
+        np.asarray([contact], dtype=float), np.ones(1), np.zeros(0), np.zeros((0, 3)),
+    )
+
+
 def test_task_from_twin_maps_the_affordance_frame_into_the_scene(tmp_path) -> None:
-    """affordances.json grasp frames have z = approach and y = handle axis; the robot's grasp frame closes its
-    fingers across the handle, so the task's handle axis is that y, and both move with T_scene_twin."""
+    """funrec-affordances/1 grasp frames have z = approach and x = handle axis (funrec.affordances); the task's
+    handle axis is that x, the demonstration is the first hold from its start, and all move with T_scene_twin."""
     part = make_part("part_0", "revolute", [0.0, 0.0, 1.0], [1.0, 2.0, 0.0], [0, 1], [0.0, 0.5], (0.0, 1.5))
     write_articulation(tmp_path / "articulation.json", TwinArticulation(frame_count=2, parts=(part,)))
     T_world_grasp = np.eye(4)
-    T_world_grasp[:3, :3] = np.column_stack([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # z = -y
-    affordances = {"parts": [{"name": "part_0", "contact_point": [1.3, 1.9, 0.8], "T_world_grasp": T_world_grasp.tolist()}]}
-    (tmp_path / "affordances.json").write_text(json.dumps(affordances))
+    T_world_grasp[:3, :3] = np.column_stack([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # x up, z = -y
+    T_world_grasp[:3, 3] = [1.3, 1.9, 0.8]
+    affordance = _fixture_affordance("part_0", [1.3, 1.9, 0.8], T_world_grasp, [0.0, 0.2, 0.5])
+    write_affordances(tmp_path / "affordances.json", Affordances((affordance,), (), "capture", 10.0))
     T_scene_twin = np.eye(4)
     T_scene_twin[:3, :3] = Rotation.from_euler("z", np.pi).as_matrix()  # the twin's y points the scene's -y
     T_scene_twin[:3, 3] = [0.5, 0.0, 0.0]
     task = task_from_twin(tmp_path, "part_0", T_scene_twin)
+    # exact arithmetic on small integers and a 180-degree rotation: only round-off remains
     np.testing.assert_allclose(task.approach_world, [0.0, 1.0, 0.0], atol=1e-12)
     np.testing.assert_allclose(task.handle_axis_world, [0.0, 0.0, 1.0], atol=1e-12)
     np.testing.assert_allclose(task.p_world_contact, [-0.8, -1.9, 0.8], atol=1e-12)
     np.testing.assert_allclose(task.pivot_world, [-0.5, -2.0, 0.0], atol=1e-12)
-    assert task.source.startswith("twin:") and task.surface_offset is None
+    np.testing.assert_allclose(task.demo_times, [0.0, 0.1, 0.2], atol=1e-12)
+    np.testing.assert_allclose(task.demo_states, [0.0, 0.2, 0.5], atol=1e-12)
+    assert task.source.startswith("twin:") and task.grasp_source == "affordances"
+    with pytest.raises(PlanningError, match="has 1 hold"):
+        task_from_twin(tmp_path, "part_0", interaction=3)
+
+
+def test_task_from_twin_without_affordances_grasps_the_mesh_and_says_so(tmp_path, caplog) -> None:
+    """A door 0.5 m wide (x from 1.0 to 1.5), hinged on its x = 1.0 edge, facing cameras at y = -2: the
+    fallback grasp is on its front (y = -0.02), MESH_GRASP_INSET_M in from the free edge, at mid-height."""
+    import trimesh
+
+    from funrec.camera_poses import write_camera_poses
+    from funrec_robot.task_sources import MESH_GRASP_INSET_M
+
+    (tmp_path / "meshes").mkdir()
+    door = trimesh.creation.box(extents=[0.5, 0.02, 0.8])
+    door.apply_translation([1.25, -0.01, 0.9])
+    door.export(tmp_path / "meshes" / "part_0.ply")
+    part = make_part("part_0", "revolute", [0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0, 1], [0.0, 0.5], (0.0, 1.5),
+                     mesh="meshes/part_0.ply")
+    write_articulation(tmp_path / "articulation.json", TwinArticulation(frame_count=2, parts=(part,)))
+    T_world_camera = np.tile(np.eye(4), (2, 1, 1))
+    T_world_camera[:, :3, 3] = [1.2, -2.0, 1.4]
+    write_camera_poses(tmp_path / "camera_poses.txt", T_world_camera)
+    with caplog.at_level("WARNING"):
+        task = task_from_twin(tmp_path, "part_0")
+    # box vertices are exact; the mesh centroid is the box centre, so the numbers are exact to round-off
+    np.testing.assert_allclose(task.p_world_contact, [1.5 - MESH_GRASP_INSET_M, -0.02, 0.9], atol=1e-9)
+    np.testing.assert_allclose(task.approach_world, [0.0, 1.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(np.abs(task.handle_axis_world), [0.0, 0.0, 1.0], atol=1e-9)
+    assert task.grasp_source.startswith("mesh fallback") and "affordances.json is missing" in task.grasp_source
+    assert "no affordance" in caplog.text
 
 
 def test_unknown_part_lists_the_parts(scenes) -> None:
