@@ -5,7 +5,7 @@ gripper is at the handle.
 The grasp is an equality attachment, not friction: two ``connect`` constraints on the handle's free axis
 (along a bar, or through the two pad contacts on a knob), i.e. a hinge about that axis, the way a bar can
 roll between parallel pads. It engages when the gripper has closed and the grasp point is within
-``engage_distance`` of the handle's geoms, and lets go when the gripper opens; while it holds, the gripper
+``engage_distance`` of the handle's geoms, and lets go once the opening fingers are clear of the handle; while it holds, the gripper
 does not collide with the part (the attachment is the grasp).
 
 Pass criteria (``CRITERIA``): the articulated joint ends within 5 deg / 2 cm of the target (states from the
@@ -434,9 +434,15 @@ class _Execution:
                     self._engage()
                     attached, engaged_at = True, t
             if attached and release is not None and t >= release.t_start and abs(command - closed) > 1e-6:
-                data.eq_active[self.equalities] = 0
-                attached = False
-                separating = True
+                # The pads let go when they stop touching the handle: the attachment holds until the opening
+                # fingers are clear of it (the part then rests on them, if gravity pulls it that way).
+                clear = self._gripper_clear_of_part()
+                if clear or t >= release.t_end:
+                    data.eq_active[self.equalities] = 0
+                    attached = False
+                    separating = not clear
+                    if clear:
+                        self._set_grasp_contacts(False)
             if separating and self._gripper_clear_of_part():
                 # Contacts come back only once the opening fingers no longer overlap the handle, else the
                 # penetration they resolve would shove the part.

@@ -169,9 +169,32 @@ def kinematic_collisions(
     return out
 
 
+def falls_to(model: mujoco.MjModel, joint: int, start: float, target: float, step: float) -> bool:
+    """Whether gravity alone carries a scene joint's part from ``start`` to ``target`` (a drop-down door let go
+    part-way): its gravity torque or force, at every state between them scanned every ``step``, points towards
+    ``target`` and exceeds the joint's dry friction."""
+    if abs(target - start) < 1e-9:
+        return True
+    states = np.linspace(start, target, max(2, int(np.ceil(abs(target - start) / step)) + 1))[:-1]
+    direction = np.sign(target - start)
+    dof = int(model.jnt_dofadr[joint])
+    data = mujoco.MjData(model)
+    for state in states:
+        data.qpos[:] = model.qpos0
+        data.qpos[model.jnt_qposadr[joint]] = state
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_comPos(model, data)
+        mujoco.mj_rne(model, data, 0, data.qfrc_bias)  # with zero velocity: minus the gravity load
+        spring = model.jnt_stiffness[joint] * (state - model.qpos_spring[model.jnt_qposadr[joint]])
+        if -direction * (data.qfrc_bias[dof] + spring) <= model.dof_frictionloss[dof]:
+            return False
+    return True
+
+
 __all__ = [
     "GravityOverload",
     "dynamic_limits",
+    "falls_to",
     "first_blocked_state",
     "first_collision",
     "gravity_overload",

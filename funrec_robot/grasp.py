@@ -49,6 +49,9 @@ class GraspConfig:
     """Preference for small tilts when ordering them, m/rad."""
     tilt_deadband: float = 0.35
     """Wrist targets within this height of the shoulder need no tilt, m."""
+    palm_check_length: float = 0.15
+    """A bar handle is taken to reach this far either side of the contact point when checking it clears the
+    palm, m."""
     handle_radius: float = 0.006
     """Geoms of the part within this distance of the contact point are the handle (the gripper may touch
     them; it avoids the rest of the part), m."""
@@ -126,7 +129,23 @@ def grasp_depth(
     )
     if offset - (reach - depth * np.cos(tilt)) < config.min_fingertip_clearance:
         return None
+    if _bar_meets_palm(task, geometry, depth, R, config):
+        return None
     return depth
+
+
+def _bar_meets_palm(task: ArticulationTask, geometry: RobotGeometry, depth: float, R: FloatArray, config: GraspConfig) -> bool:
+    """Whether a bar handle, through the contact point along the grasp's free axis and tilted by ``R`` with the
+    gripper, runs into the palm's boxes within ``palm_check_length`` either side (a steep pitch about the other
+    axis lays the bar along the fingers, into the palm)."""
+    if task.handle_axis_world is None or not len(geometry.palm_corners):
+        return False
+    direction = R.T @ np.eye(3)[grasp_free_axis(task)]
+    s = np.linspace(-config.palm_check_length, config.palm_check_length, 121)
+    points = np.array([0.0, 0.0, depth]) + s[:, None] * direction
+    radius = (task.handle_width or 0.0) / 2 + config.pad_margin
+    low, high = geometry.palm_corners.min(axis=0) - radius, geometry.palm_corners.max(axis=0) + radius
+    return bool(np.any(np.all((points >= low) & (points <= high), axis=1)))
 
 
 def finger_half_opening(geometry: RobotGeometry) -> float:

@@ -21,6 +21,7 @@ from funrec.typed import FloatArray
 from funrec_robot.feasibility import (
     GravityOverload,
     dynamic_limits,
+    falls_to,
     first_blocked_state,
 )
 from funrec_robot.grasp import (
@@ -136,6 +137,9 @@ class PlanConfig:
     """Planning stops trying further grasp tilts and base stops after this long, s."""
     footprint_radius: float = 2.5
     """Furniture within this distance of the handle path enters base placement, m."""
+    falling_retreat_scale: float = 0.5
+    """Speed of the retreat from a part let go to fall open (a drop-down door beyond the arm's reach), as a
+    fraction of the usual: it rests on the open fingers until they have slid out from under it."""
 
 
 
@@ -294,6 +298,7 @@ def plan_interaction(
     geometry = measure_robot(robot)
     start_state = task.state_current if start is None else float(start)
     target_state = resolve_target(task, target)
+    final_state = None  # where the part comes to rest after release, if not where the hand lets go
     capped = None
     if isinstance(target, str) and target.strip().lower() in ("open", "close"):
         margin = config.end_margin_rad if task.joint_type == "revolute" else config.end_margin_m
@@ -330,6 +335,12 @@ def plan_interaction(
             log.warning("part '%s': the arm reaches the handle only up to %.3f %s of %.3f; planning that far",
                         task.part, states[reachable - 1], task.unit, target_state)
             states, target_state = states[:reachable], float(states[reachable - 1])
+            # A part that gravity carries on to the requested state (a drop-down door) is let go there and
+            # falls open: the plan's target stays the requested one.
+            step = config.free_range_step if task.joint_type == "revolute" else config.free_range_step_m
+            if falls_to(model, joint, target_state, reach_capped["requested"], step):
+                final_state = reach_capped["requested"]
+                reach_capped["released_to_fall"] = True
             candidates = grasp_candidates(robot, task, states, geometry, r_max, config.grasp)
     if not candidates:
         raise PlanningError(
@@ -393,6 +404,10 @@ def plan_interaction(
         actuate = _slowed(actuate, float(task.demo_times[-1] - task.demo_times[0]) / actuate.duration, rc.dt)
     q_path = configs["path"]
     retreat = point_to_point(q_path[-1], configs["retreat"], v, a, rc)
+    if final_state is not None:
+        # The released part rests on the open fingers until they have slid out from under it.
+        retreat = _slowed(retreat, 1.0 / config.falling_retreat_scale, rc.dt)
+    end_state = target_state if final_state is None else final_state
     close_hold, close_cmd = _gripper_move(q_path[0], opening, holding, config)
     released = release_command(robot, holding, config.grasp)
     open_hold, open_cmd = _gripper_move(q_path[-1], holding, released, config, config.release_hold_time)
@@ -405,7 +420,7 @@ def plan_interaction(
         ("grasp", close_hold, close_cmd, constant(close_hold, start_state)),
         ("actuate", Trajectory(actuate.t, actuate.q[:, :-1], actuate.qd[:, :-1]), constant(actuate, holding), actuate.q[:, -1]),
         ("release", open_hold, open_cmd, constant(open_hold, target_state)),
-        ("retreat", retreat, constant(retreat, released), constant(retreat, target_state)),
+        ("retreat", retreat, constant(retreat, released), constant(retreat, end_state)),
     ]
     t, q, qd, gripper, part_state, raw_segments = _concatenate(pieces, rc.dt)
     segments = _merge_segments(raw_segments, t)
@@ -464,7 +479,7 @@ def plan_interaction(
         pivot_world=task.pivot_world,
         state_range=task.state_range,
         start_state=start_state,
-        target_state=target_state,
+        target_state=end_state,
         T_world_grasp_start=T_start,
         p_world_grasp_target=path[-1, :3, 3] + depth * path[-1, :3, 2],
         grasp_free_axis=grasp_free_axis(task),

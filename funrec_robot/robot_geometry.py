@@ -6,7 +6,7 @@ home-pose arm, each with its height band) and how far the fingers reach past the
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
@@ -52,6 +52,8 @@ class RobotGeometry:
     """(near, far) extent of the finger pads along the grasp z, relative to the grasp frame, m."""
     finger_corners: FloatArray
     """(M, 3) corners of the finger geoms' boxes in the grasp frame with the gripper open, m."""
+    palm_corners: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+    """(P, 3) corners of the boxes of the hand's other geoms (palm, gripper body) in the grasp frame, m."""
 
 
 def _circles(corners: FloatArray, z_low: float, z_high: float) -> tuple[Circle, ...]:
@@ -98,6 +100,8 @@ def measure_robot(robot: RobotDescription) -> RobotGeometry:
         subtree_bodies(model, int(model.jnt_bodyid[model.joint(f"robot/{name}").id])) for name in robot.gripper.joints
     ]))
     finger_geoms = all_geoms[np.isin(model.geom_bodyid[all_geoms], finger_bodies)]
+    hand_bodies = subtree_bodies(model, int(model.site_bodyid[indices.grasp_site]))
+    palm_geoms = np.setdiff1d(all_geoms[np.isin(model.geom_bodyid[all_geoms], hand_bodies)], finger_geoms)
 
     body_corners = _corners(model, data, body_geoms)
     arm_corners = _corners(model, data, arm_geoms)
@@ -112,6 +116,7 @@ def measure_robot(robot: RobotDescription) -> RobotGeometry:
         fingertip_depth=float(finger_z.max()),
         finger_depth_range=(float(finger_z.min()), float(finger_z.max())),
         finger_corners=finger_grasp,
+        palm_corners=(_corners(model, data, palm_geoms) - p_grasp) @ R_world_grasp if len(palm_geoms) else np.zeros((0, 3)),
     )
 
 

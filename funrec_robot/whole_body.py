@@ -85,7 +85,9 @@ def whole_body_configurations(
     q_grasp, e_pos, e_rot = ik.solve(path[0], q_pre, posture[0], start_state, opening)
     _require(e_pos, e_rot, config, "grasp pose", start_state, task)
 
-    allowed = set(handle.tolist())
+    # Up to the pre-grasp pose nothing of the scene may be touched, the handle included (a swing through it
+    # pushes the part before the grasp); only the last, slow move along the approach reaches it.
+    allowed: set[int] = set()
     scene = np.flatnonzero(~np.isin(model.geom_bodyid, ik.indices.bodies))
     floor = set(floor_geoms(model, scene).tolist())
     approach = [q_start, q_pre, q_grasp]

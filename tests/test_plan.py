@@ -227,3 +227,21 @@ def test_roll_to_hold_undoes_a_roll_about_the_axis(seed: int, roll: float, axis:
     assert back == pytest.approx(-roll, abs=1e-9)
     clipped = roll_to_hold(R[None], R_held, axis, 0.5)[0]
     assert abs(clipped) <= 0.5 + 1e-12
+
+
+def test_falls_to_follows_gravity_on_a_drop_down_door():
+    """A door hinged at its bottom edge (axis x, opening towards -y) falls further open when let go part-way,
+    never back closed; a spring stronger than gravity holds it."""
+    import mujoco
+
+    from funrec_robot.feasibility import falls_to
+
+    door = """<mujoco><worldbody><body name="door" pos="0 0 0.1">
+      <joint name="hinge" type="hinge" axis="1 0 0" range="0 1.5" stiffness="{k}"/>
+      <geom type="box" pos="0 -0.01 0.3" size="0.25 0.01 0.3" mass="5"/></body></worldbody></mujoco>"""
+    model = mujoco.MjModel.from_xml_string(door.format(k=0))
+    assert falls_to(model, 0, 0.8, 1.45, 0.01)
+    assert not falls_to(model, 0, 0.8, 0.1, 0.01)
+    # gravity torque at most 5 * 9.81 * 0.3 = 14.7 N m; a 100 N m/rad spring about 0 wins everywhere past 0.15 rad
+    held = mujoco.MjModel.from_xml_string(door.format(k=100))
+    assert not falls_to(held, 0, 0.8, 1.45, 0.01)
