@@ -101,6 +101,9 @@ class ArticulationConfig:
     """A track joins a part only if it watched at least this fraction of the part's travel (90th
     percentile over the part's tracks) while following it: one that saw only the first
     centimetres is as likely a static track drifting."""
+    bic_margin_factor: float = 1.0
+    """The revolute model (two more parameters) must lower the robust cost by this factor x
+    log(scalar residual count): 1 is BIC for a negative log-likelihood (ln n / 2 per parameter)."""
     type_extent_ratio: float = 1.5
     """A joint type whose grown part travels this many times farther than the other type's wins
     outright (see :func:`_extract_part`); closer travels are decided by the robust cost."""
@@ -349,6 +352,7 @@ def _fit_joint(p: FloatArray, vis: BoolArray, config: ArticulationConfig, rng: n
             fit = fit_joint_to_tracks(kind, start["axis"], start["pivot"], start["states"], p, vis,
                                       config.track_noise_m, config.fit_error_m, polish=False)
             cost = _robust_cost(np.where(vis, fit["residual"], np.nan), config.track_noise_m)
+            logger.debug("%s start %d: cost %.1f, %d tracks used", kind, len(fits), cost, int(fit["used"].sum()))
             if kind not in fits or cost < costs[kind]:
                 fits[kind], costs[kind] = fit, cost
         if polish:
@@ -358,16 +362,21 @@ def _fit_joint(p: FloatArray, vis: BoolArray, config: ArticulationConfig, rng: n
             cost = _robust_cost(np.where(vis, fit["residual"], np.nan), config.track_noise_m)
             if cost < costs[kind]:
                 fits[kind], costs[kind] = fit, cost
-    n_obs = int(vis.sum())
     if joint_type is None:
         rev = fits["revolute"]
         rotation = float(np.nanmax(np.abs(rev["states"][rev["support"] > 0]), initial=0.0))
         near = np.linalg.norm(rev["x"][rev["used"]] - rev["pivot"], axis=1) if rev["pivot"] is not None else np.zeros(0)
         plausible = len(near) > 0 and float(np.min(near)) < config.max_pivot_distance_m
-        joint_type = ("revolute" if costs["revolute"] < costs["prismatic"] - 2.0 * np.log(3 * n_obs)
+        # Both costs on the tracks both fits kept: a fit that dropped a track it explains badly
+        # would otherwise win by the dropped track's cost (measured: a drop-down oven door typed
+        # prismatic because its revolute fit kept one more, poorer track).
+        common = vis & (fits["revolute"]["used"] & fits["prismatic"]["used"])[None, :]
+        shared = {kind: _robust_cost(np.where(common, f["residual"], np.nan), config.track_noise_m) for kind, f in fits.items()}
+        margin = config.bic_margin_factor * np.log(3 * max(int(common.sum()), 1))
+        joint_type = ("revolute" if shared["revolute"] < shared["prismatic"] - margin
                       and rotation > config.min_rotation_rad and plausible else "prismatic")
         logger.debug("joint choice: costs rev %.1f pri %.1f (margin %.1f), rotation %.3f rad, pivot plausible %s, "
-                     "tracks %d -> %s", costs["revolute"], costs["prismatic"], 2.0 * np.log(3 * n_obs), rotation, plausible,
+                     "tracks %d -> %s", shared["revolute"], shared["prismatic"], margin, rotation, plausible,
                      p.shape[1], joint_type)
     fit = fits[joint_type]
     support = fit["support"] > 0

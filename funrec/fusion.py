@@ -85,6 +85,9 @@ class Meshes:
     """Static scene with hands and parts removed, world frame, metres."""
     parts: tuple[trimesh.Trimesh, ...]
     """One mesh per part at its canonical state (pose = identity), world frame, metres."""
+    empty_parts: tuple[int, ...] = ()
+    """Parts whose masked depth fused into no surface (their mesh in ``parts`` is empty): the
+    caller drops them (a part without pixels cannot be scored or simulated)."""
 
 
 def fuse_tsdf(
@@ -118,7 +121,8 @@ def fuse_tsdf(
 
     Raises:
         ValueError: inconsistent shapes or invalid transforms.
-        ReconstructionError: a volume produced no surface (no valid depth, or empty masks).
+        ReconstructionError: the static volume produced no surface (no valid depth); a part
+            whose masks fuse into nothing gets an empty mesh and is listed in ``empty_parts``.
     """
     F = len(capture)
     if len(trajectory.T_world_camera) != F:
@@ -155,8 +159,15 @@ def fuse_tsdf(
         done += 1
         if progress is not None:
             progress(done, len(fused))
-    part_meshes = [volume.extract(f"part {k}", config) for k, volume in enumerate(part_volumes)]
-    scenes = [_raycaster(mesh) for mesh in part_meshes]
+    part_meshes, empty = [], []
+    for k, volume in enumerate(part_volumes):
+        try:
+            part_meshes.append(volume.extract(f"part {k}", config))
+        except ReconstructionError as exc:  # empty masks must not cost the static scene and other parts
+            logger.warning("%s; part %d has no mesh and should be dropped", exc, k)
+            part_meshes.append(trimesh.Trimesh())
+            empty.append(k)
+    scenes = [None if k in empty else _raycaster(mesh) for k, mesh in enumerate(part_meshes)]
     for frame in deferred:
         depth_m, rgb, hand = capture.depth_m(frame), capture.rgb(frame), _hand(capture, frame, config)
         T_camera_world = invert_transform(trajectory.T_world_camera[frame])
@@ -165,6 +176,8 @@ def fuse_tsdf(
             j = lookup[k].get(frame)
             if j is not None:
                 exclude = exclude | _dilate(masks.mask(j), config.exclusion_margin_px)
+                continue
+            if scenes[k] is None:
                 continue
             # Untracked frame: the part rests at the pose of the nearest tracked frame; leave out
             # the pixels its mesh explains.
@@ -180,7 +193,7 @@ def fuse_tsdf(
         if progress is not None:
             progress(done, len(fused))
     static = static_volume.extract("static scene", config)
-    return Meshes(static, tuple(part_meshes))
+    return Meshes(static, tuple(part_meshes), tuple(empty))
 
 
 class _Volume:

@@ -7,7 +7,7 @@ transforms T_i = J(a, p, s_i), so the refined poses are joint transforms by cons
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
@@ -15,10 +15,13 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import RigidTransform
 
 from funrec.articulation import PartEstimate
+from funrec.capture import Capture
+from funrec.depth_states import DepthStateConfig, depth_states
 from funrec.geometry.fitting import fit_prismatic_motions, fit_revolute_motions, ransac_rigid
 from funrec.geometry.joints import closest_point_on_axis_to_origin, joint_transforms
 from funrec.geometry.transforms import invert_transform, rotation_about_axis
 from funrec.point_tracks import PointTracks
+from funrec.tracking import CameraTrajectory
 from funrec.typed import BoolArray, FloatArray, IntArray
 
 logger = logging.getLogger(__name__)
@@ -61,6 +64,16 @@ class PartMotionConfig:
     are left out of the track term."""
     max_evaluations: int = 60
     """Residual evaluations allowed to the solver."""
+    depth_states: DepthStateConfig = field(default_factory=DepthStateConfig)
+    """States of the frames the tracks do not cover, searched in depth along the refined joint
+    (needs the capture and camera trajectory)."""
+    rest_offset_factor: float = 6.0
+    """The canonical state moves to frame 0 when the depth search puts frame 0 more than this
+    many grid steps (3 deg, 2.4 cm) from the tracked canonical state; smaller offsets are the
+    search's own bias at rest (measured 0.5-1 deg on a closed cabinet door)."""
+    max_point_residual_m: float = 0.02
+    """Tracks whose median residual under the refined joint exceeds this are not used as part
+    points by the depth search (slipped KLT tracks, hand points)."""
 
 
 @dataclass(frozen=True)
@@ -74,7 +87,8 @@ class PartMotion:
     pivot_world: FloatArray | None
     """(3,) revolute axis point closest to the origin; None for prismatic."""
     frames: IntArray
-    """(F_k,) frame indices (those of the stage-3 estimate)."""
+    """(F_k,) frame indices: those of the stage-3 estimate, or every capture frame when the
+    states were searched in depth."""
     states: FloatArray
     """(F_k,) joint states; frames[0] is the canonical state 0."""
     state_range: tuple[float, float]
@@ -419,14 +433,24 @@ def refine_part_motion(
     estimate_part: PartEstimate,
     config: PartMotionConfig = PartMotionConfig(),  # noqa: B008 (frozen, immutable default)
     rng: np.random.Generator | None = None,
+    *,
+    capture: Capture | None = None,
+    trajectory: CameraTrajectory | None = None,
 ) -> PartMotion:
     """Refine a part's articulation and poses on the pose graph of its tracks (paper eq. L).
+
+    With the capture and its camera trajectory, the states of every capture frame are then
+    searched in depth along the refined joint (:func:`~funrec.depth_states.depth_states`): tracks
+    die where a door turns edge-on, long before it is fully open. The part's frames become all
+    capture frames and its canonical state that of frame 0.
 
     Args:
         tracks: the point tracks stage 3 used (world frame).
         estimate_part: one part of stage 3's :class:`~funrec.articulation.ArticulationEstimate`.
         config: switches and thresholds.
         rng: generator for RANSAC sampling; None uses ``np.random.default_rng(0)``.
+        capture: the capture (depth read lazily); None keeps the tracked frames only.
+        trajectory: its ``T_world_camera`` (F, 4, 4); needed with ``capture``.
 
     Returns:
         :class:`PartMotion` whose poses are joint transforms of its axis, pivot and states.
@@ -465,22 +489,48 @@ def refine_part_motion(
         axis, states = -axis, -states
     states = states - states[0]
     T_final = joint_transforms(part.joint_type, axis, pivot, states)
-    rms_final = _track_rms(p, vis, T_final)[0]
+    rms_final, res_final, x = _track_rms(p, vis, T_final)
     logger.info("part %s refined: track rms %.4f -> %.4f m in %d evaluations", part.joint_type, rms_init, rms_final, evaluations)
-    return _output(part, axis, pivot, states, np.stack([frames[edges.i], frames[edges.j]], -1), edges.loop, confidence,
-                   (err**2).sum(-1), sigma_p, rms_init, rms_final, evaluations)
+    if capture is not None and trajectory is not None and config.depth_states.enabled:
+        median = np.nanmedian(np.where(vis, res_final, np.nan), axis=0)
+        points = x[(vis.sum(0) >= 2) & (median < config.max_point_residual_m)]
+        frames, states, axis = _extend_states(capture, trajectory, part, axis, pivot, states, points, config)
+    return _output(part, axis, pivot, states, np.stack([part.frames[edges.i], part.frames[edges.j]], -1), edges.loop,
+                   confidence, (err**2).sum(-1), sigma_p, rms_init, rms_final, evaluations, frames)
+
+
+def _extend_states(capture: Capture, trajectory: CameraTrajectory, part: PartEstimate, axis: FloatArray,
+                   pivot: FloatArray | None, states: FloatArray, points: FloatArray, config: PartMotionConfig
+                   ) -> tuple[IntArray, FloatArray, FloatArray]:
+    """States of every capture frame from depth (tracked states kept where the depth search
+    agrees with them), re-based to frame 0 when its state is clearly not the tracked canonical
+    one, and signed so the largest |state| is positive.
+    Returns frames (F,), states (F,) and the (possibly flipped) axis (3,)."""
+    trusted = ~part.interpolated
+    found = depth_states(capture, trajectory, part.joint_type, axis, pivot, points, part.frames, states, trusted,
+                         config.depth_states)
+    step = config.depth_states.revolute_step_rad if part.joint_type == "revolute" else config.depth_states.prismatic_step_m
+    agree = trusted & (np.abs(found[part.frames] - states) <= 2.0 * step)
+    found[part.frames[agree]] = states[agree]
+    if abs(found[0]) > config.rest_offset_factor * step:  # tracking began after the part moved: frame 0 is canonical
+        found = found - found[0]
+    if found[np.argmax(np.abs(found))] < 0:
+        axis, found = -axis, -found
+    logger.info("part %s states from depth: frames 0-%d, range [%.3f, %.3f] (tracked %d-%d, [%.3f, %.3f])", part.joint_type,
+                len(found) - 1, found.min(), found.max(), part.frames[0], part.frames[-1], states.min(), states.max())
+    return np.arange(len(found), dtype=np.int64), found, axis
 
 
 def _output(part: PartEstimate, axis: FloatArray, pivot: FloatArray | None, states: FloatArray, edge_frames: IntArray,
             is_loop: BoolArray, confidence: FloatArray, chi2: FloatArray, sigma_p: float, rms_init: float, rms: float,
-            evaluations: int) -> PartMotion:
+            evaluations: int, frames: IntArray | None = None) -> PartMotion:
     axis = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
     pivot = None if pivot is None else closest_point_on_axis_to_origin(axis, pivot)
     return PartMotion(
         joint_type=part.joint_type,
         axis_world=axis,
         pivot_world=pivot,
-        frames=part.frames.copy(),
+        frames=(part.frames if frames is None else np.asarray(frames, dtype=np.int64)).copy(),
         states=np.asarray(states, dtype=np.float64),
         state_range=(float(np.min(states)), float(np.max(states))),
         T_world_part=joint_transforms(part.joint_type, axis, pivot, states),

@@ -77,6 +77,19 @@ def test_fuse_tsdf_chamfer_and_canonical_part(small_sequence: Path) -> None:
     assert cd_canonical < 0.01 and cd_canonical < 0.2 * cd_posed, (cd_canonical, cd_posed)
 
 
+def test_fuse_tsdf_part_with_empty_masks_is_reported_not_raised(small_sequence: Path) -> None:
+    # Segmentation can leave a part without pixels; the static scene and the other part must
+    # still be fused, and the empty part is listed for the caller to drop.
+    capture, _, trajectory, frames, T_world_part = true_inputs(small_sequence)
+    few = frames[::6]
+    good = true_part_masks(small_sequence, few)
+    empty = PartMasks.from_masks(few, np.zeros((len(few), good.height, good.width), dtype=bool))
+    meshes = fuse_tsdf(capture, trajectory, [empty, good], [T_world_part[few]] * 2)
+    assert meshes.empty_parts == (0,)
+    assert len(meshes.parts[0].faces) == 0 and len(meshes.parts[1].faces) > 100
+    assert len(meshes.static.faces) > 1000
+
+
 def test_fuse_tsdf_keeps_untracked_part_out_of_static(small_sequence: Path) -> None:
     """Masks only after the door starts moving: earlier frames see the closed door without a
     mask, and the static mesh must still leave it out (the part mesh is rendered there)."""
