@@ -1,5 +1,6 @@
 """Benchmark runner: reconstruct every sequence of a synthetic suite in a subprocess, score each
-twin with :func:`funrec.evaluate.evaluate_twin` and write report.json and report.md.
+twin with :func:`funrec.evaluate.evaluate_twin` and write report.json and report.md
+(:mod:`funrec.bench_report`).
 
 A sequence that crashes, times out or yields an unreadable twin is a failure row; the run
 never aborts on one sequence.
@@ -7,7 +8,6 @@ never aborts on one sequence.
 
 from __future__ import annotations
 
-import dataclasses
 import importlib
 import json
 import logging
@@ -25,21 +25,28 @@ from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
 
-import numpy as np
-
+from funrec.bench_report import (
+    BenchReport,
+    BenchSummary,
+    MethodReport,
+    SequenceResult,
+    format_report,
+    report_to_json,
+    report_to_markdown,
+    summarize,
+)
 from funrec.capture import load_capture
 from funrec.errors import FunrecError
-from funrec.evaluate import EvalConfig, TwinEvaluation, evaluate_twin, evaluation_to_json, failed_evaluation
+from funrec.evaluate import EvalConfig, evaluate_twin, failed_evaluation
 
 LOGGER = logging.getLogger(__name__)
 
 METHODS = ("funrec", "oracle", "trivial")
 """Methods :func:`run_bench` can run: the reconstruction, and the two reference baselines."""
 _BASELINE_SNIPPET = "import sys; from funrec.baselines import {function}; {function}(sys.argv[1], sys.argv[2])"
-# Forks the measured command from a bare interpreter (~10 MB) and writes its wait status and
-# ru_maxrss to argv[1]. Linux carries a process's peak RSS across fork and exec (exec records
+# Forks the measured command from a bare interpreter (~10 MB) and writes its wait status,
+# ru_maxrss and CPU time (user + system, seconds) to argv[1]. Linux carries a process's peak RSS across fork and exec (exec records
 # the old address space's high-water mark), so a command started straight from the bench
 # would report at least the bench's own RSS.
 _LAUNCHER = (
@@ -53,11 +60,23 @@ _LAUNCHER = (
     "        os._exit(127)\n"
     "_, status, rusage = os.wait4(pid, 0)\n"
     "with open(sys.argv[1], 'w') as f:\n"
-    "    f.write(f'{status} {rusage.ru_maxrss}')\n"
+    "    f.write(f'{status} {rusage.ru_maxrss} {rusage.ru_utime + rusage.ru_stime}')\n"
     "code = os.waitstatus_to_exitcode(status)\n"
     "sys.exit(code if code >= 0 else 128 - code)\n"
 )
 _PROJECT_ROOT = Path(__file__).resolve().parents[1]
+
+STANDARD_ABLATIONS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    ("no pose graph", ("--no-tracking-use-pose-graph",)),
+    ("no joint constraint", ("--no-part-motion-use-joint-constraint",)),
+    ("no re-seeding", ("--no-point-tracks-reseed",)),
+    ("no hand masks", ("--no-use-hand-masks",)),
+)
+"""The ablation set "standard": each row switches off one stage with one reconstruct flag, so
+its worth is the difference to the full method: the camera pose graph (loop closures), the
+articulation-constrained part-motion refinement, point-track re-seeding and the hand masks."""
+ABLATION_SETS: dict[str, tuple[tuple[str, tuple[str, ...]], ...]] = {"none": (), "standard": STANDARD_ABLATIONS}
+"""Named ablation sets selectable with BenchConfig.ablation_set."""
 
 ProgressCallback = Callable[[int, int], None]
 """``progress(done, total)``, called after each (method, sequence) run; the CLI draws a bar."""
@@ -80,6 +99,12 @@ class BenchConfig:
     ablations: tuple[tuple[str, tuple[str, ...]], ...] = ()
     """(label, extra reconstruct args) pairs; each runs "funrec reconstruct" with reconstruct_args
     plus its extra args as an additional method and gets a row in the ablation table."""
+    ablation_set: str = "none"
+    """Named ablations run in the same bench, after ``ablations``: "none" or "standard" (no
+    camera pose graph, no joint-constrained part motion, no track re-seeding, no hand masks)."""
+    ablation_sequences: str | None = None
+    """Comma-separated sequence names the ablations run on (None: every sequence); the ablation
+    table then compares them with the full method on the same sequences."""
     generate_missing: bool = True
     """Generate missing sequences with funrec.synth.generate_suite before running."""
     jobs: int = 1
@@ -87,165 +112,6 @@ class BenchConfig:
     evaluation: EvalConfig = EvalConfig()
     """Evaluation settings."""
 
-
-@dataclass(frozen=True)
-class SequenceResult:
-    """One method on one sequence: how the run went and its evaluation."""
-
-    name: str
-    """Sequence name (folder name in the suite)."""
-    method: str
-    """Method label (the method, or an ablation label)."""
-    status: str
-    """"ok", "failed" (crash, bad exit code, unreadable twin) or "timeout"."""
-    reason: str | None
-    """Why the run failed; None when status is "ok"."""
-    frame_count: int
-    """Frames in the capture (0 if the capture is unreadable)."""
-    wall_s: float | None
-    """Wall time of the run subprocess, seconds; None if it never started."""
-    peak_rss_mb: float | None
-    """Peak resident memory of the run subprocess (its ru_maxrss), MiB; None if unknown (timeout)."""
-    evaluation: TwinEvaluation
-    """Scores; when the run failed every true part fails with the run's reason."""
-    twin_dir: Path
-    """Where the twin was written."""
-    log_path: Path | None
-    """stdout and stderr of the run subprocess."""
-
-    @property
-    def frames_per_s(self) -> float | None:
-        """Throughput of a completed run: frames / wall time."""
-        if self.status != "ok" or not self.wall_s or not self.frame_count:
-            return None
-        return self.frame_count / self.wall_s
-
-
-@dataclass(frozen=True)
-class BenchSummary:
-    """Aggregate of one method over sequences, in the layout of the paper's tables.
-
-    Part metrics average over non-failed parts; ``fail_pct`` is over all true parts; CD and
-    ATE average over sequences that have them; throughput is total frames over total wall
-    time of completed runs; peak memory is the maximum over runs.
-    """
-
-    sequences: int
-    """Sequences run."""
-    failed_sequences: int
-    """Sequences whose run or twin failed."""
-    parts: int
-    """True parts over all sequences."""
-    failed_parts: int
-    """True parts that failed (no match, wrong joint type, or their sequence failed)."""
-    invented_parts: int
-    """Predicted parts matched to no true part, summed."""
-    axis_revolute_deg: float | None
-    """Mean axis direction error of revolute parts, degrees (None: no scored part of the type)."""
-    axis_prismatic_deg: float | None
-    """Mean axis direction error of prismatic parts, degrees."""
-    pivot_m: float | None
-    """Mean axis position (pivot line) error of revolute parts, metres."""
-    state_revolute_deg: float | None
-    """Mean state error of revolute parts, degrees."""
-    state_prismatic_m: float | None
-    """Mean state error of prismatic parts, metres."""
-    fail_pct: float | None
-    """Failed true parts over all true parts, percent (None: no true parts)."""
-    adds_auc: float | None
-    """Mean ADD-S AUC (0-10 cm), percent."""
-    add_auc: float | None
-    """Mean ADD AUC (0-10 cm), percent."""
-    chamfer_cm: float | None
-    """Mean scene chamfer distance, cm."""
-    miou: float | None
-    """Mean part mIoU, percent (parts without a non-empty true mask in their frames are left out)."""
-    camera_ate_cm: float | None
-    """Mean camera ATE (camera-0 frame, no alignment), cm."""
-    frames_per_s: float | None
-    """Total frames over total wall time of completed runs."""
-    peak_rss_mb: float | None
-    """Largest peak RSS of a run subprocess, MiB."""
-
-
-@dataclass(frozen=True)
-class MethodReport:
-    """All sequences of one method (or ablation) and their summary."""
-
-    label: str
-    """Method name or ablation label."""
-    command: tuple[str, ...]
-    """Command template run per sequence; CAPTURE and TWIN stand for the folders."""
-    sequences: tuple[SequenceResult, ...]
-    """Per-sequence results, in suite order."""
-    summary: BenchSummary
-    """Aggregate over ``sequences``."""
-
-
-@dataclass(frozen=True)
-class BenchReport:
-    """Everything :func:`run_bench` measured, plus where and how it ran."""
-
-    suite_dir: Path
-    """The suite folder run."""
-    out_dir: Path
-    """Where twins, logs and the report were written."""
-    methods: tuple[MethodReport, ...]
-    """The main method first, then one entry per ablation."""
-    git_commit: str
-    """``git rev-parse --short HEAD``, with "-dirty" if tracked files changed; "unknown" without git."""
-    machine: str
-    """CPU model, core count, OS and architecture."""
-    date: str
-    """Start time, ISO 8601 UTC."""
-    command_line: str
-    """The command line that started the bench."""
-    config: BenchConfig
-    """The settings it ran with."""
-
-    @property
-    def main(self) -> MethodReport:
-        return self.methods[0]
-
-    @property
-    def ablations(self) -> tuple[MethodReport, ...]:
-        return self.methods[1:]
-
-
-def _mean(values: list[float | None]) -> float | None:
-    present = [v for v in values if v is not None]
-    return float(np.mean(present)) if present else None
-
-
-def summarize(results: tuple[SequenceResult, ...] | list[SequenceResult]) -> BenchSummary:
-    """Aggregate sequence results as described in :class:`BenchSummary`."""
-    parts = [p for r in results for p in r.evaluation.parts]
-    scored = [p for p in parts if not p.failed]
-    revolute = [p for p in scored if p.joint_type == "revolute"]
-    prismatic = [p for p in scored if p.joint_type == "prismatic"]
-    done = [r for r in results if r.status == "ok" and r.wall_s]
-    wall = sum(r.wall_s or 0.0 for r in done)
-    rss = [r.peak_rss_mb for r in results if r.peak_rss_mb is not None]
-    return BenchSummary(
-        sequences=len(results),
-        failed_sequences=sum(r.status != "ok" for r in results),
-        parts=len(parts),
-        failed_parts=len(parts) - len(scored),
-        invented_parts=sum(len(r.evaluation.invented_parts) for r in results),
-        axis_revolute_deg=_mean([p.axis_error_deg for p in revolute]),
-        axis_prismatic_deg=_mean([p.axis_error_deg for p in prismatic]),
-        pivot_m=_mean([p.pivot_error_m for p in revolute]),
-        state_revolute_deg=_mean([p.state_error for p in revolute]),
-        state_prismatic_m=_mean([p.state_error for p in prismatic]),
-        fail_pct=100.0 * (len(parts) - len(scored)) / len(parts) if parts else None,
-        adds_auc=_mean([p.adds_auc for p in scored]),
-        add_auc=_mean([p.add_auc for p in scored]),
-        chamfer_cm=_mean([r.evaluation.chamfer_cm for r in results]),
-        miou=_mean([p.miou for p in scored]),
-        camera_ate_cm=_mean([r.evaluation.camera_ate_cm for r in results]),
-        frames_per_s=sum(r.frame_count for r in done) / wall if wall > 0 else None,
-        peak_rss_mb=max(rss) if rss else None,
-    )
 
 
 @dataclass(frozen=True)
@@ -258,14 +124,18 @@ class _ChildResult:
     """Peak resident memory of the command, MiB; None if it was killed before reporting."""
     timed_out: bool
     """True if it was killed at the time limit."""
+    cpu_s: float | None = None
+    """CPU time (user + system) of the command and the descendants it waited for, seconds;
+    None if it was killed before reporting."""
 
 
 def _run_child(command: list[str], log_path: Path, timeout_s: float, active: set[int] | None = None) -> _ChildResult:
     """Run ``command`` in its own session, killing the whole group after ``timeout_s``.
 
     The command runs under a bare-interpreter launcher (see ``_LAUNCHER``) that reaps it with
-    ``os.wait4`` and reports its own ``ru_maxrss`` (KiB on Linux): the peak memory of the
-    command and the descendants it waited for, not of the bench. The process-group id is in
+    ``os.wait4`` and reports its own ``ru_maxrss`` (KiB on Linux) and CPU time: the peak memory
+    and CPU time of the command and the descendants it waited for, not of the bench. CPU time
+    is the throughput measure that holds on a shared machine, where wall time depends on load. The process-group id is in
     ``active`` while it runs, so an interrupted bench can kill it (its own session does not
     receive the terminal's Ctrl-C).
     """
@@ -301,12 +171,13 @@ def _run_child(command: list[str], log_path: Path, timeout_s: float, active: set
             active.discard(process.pid)
     wall_s = time.perf_counter() - start
     try:
-        status_text, maxrss_kib = rusage_path.read_text().split()
+        status_text, maxrss_kib, cpu_text = rusage_path.read_text().split()
         rusage_path.unlink()
         returncode, peak_rss_mb = os.waitstatus_to_exitcode(int(status_text)), int(maxrss_kib) / 1024.0
+        cpu_s: float | None = float(cpu_text)
     except (OSError, ValueError):  # killed before the launcher could report
-        returncode, peak_rss_mb = process.returncode, None
-    return _ChildResult(returncode, wall_s, peak_rss_mb, timed_out.is_set())
+        returncode, peak_rss_mb, cpu_s = process.returncode, None, None
+    return _ChildResult(returncode, wall_s, peak_rss_mb, timed_out.is_set(), cpu_s)
 
 
 def _method_command(method: str, extra: tuple[str, ...], capture: str, twin: str) -> list[str]:
@@ -334,8 +205,8 @@ def _run_sequence(
 
     def failure(status: str, reason: str, frames: int = 0, child: _ChildResult | None = None) -> SequenceResult:
         LOGGER.warning("%s on %s: %s", label, capture.name, reason)
-        wall, rss = (child.wall_s, child.peak_rss_mb) if child else (None, None)
-        return SequenceResult(capture.name, label, status, reason, frames, wall, rss, failed_evaluation(twin, gt_dir, reason), twin, log_path)
+        wall, rss, cpu = (child.wall_s, child.peak_rss_mb, child.cpu_s) if child else (None, None, None)
+        return SequenceResult(capture.name, label, status, reason, frames, wall, rss, failed_evaluation(twin, gt_dir, reason), twin, log_path, cpu)
 
     try:
         frame_count = len(load_capture(capture, check_headers=False))
@@ -358,7 +229,9 @@ def _run_sequence(
         LOGGER.exception("evaluation of %s crashed", twin)
         return failure("failed", f"evaluation crashed: {type(exc).__name__}: {exc}", frame_count, child)
     status, reason = ("ok", None) if evaluation.ok else ("failed", evaluation.failure)
-    return SequenceResult(capture.name, label, status, reason, frame_count, child.wall_s, child.peak_rss_mb, evaluation, twin, log_path)
+    return SequenceResult(
+        capture.name, label, status, reason, frame_count, child.wall_s, child.peak_rss_mb, evaluation, twin, log_path, child.cpu_s
+    )
 
 
 def _is_sequence(path: Path) -> bool:
@@ -417,6 +290,39 @@ def _machine() -> str:
     return f"{model or platform.processor() or 'unknown CPU'}, {os.cpu_count()} cores, {platform.system()} {platform.machine()}"
 
 
+def _ablations(config: BenchConfig) -> tuple[tuple[str, tuple[str, ...]], ...]:
+    """Validated settings: the explicit ablations followed by the named set."""
+    if config.method not in METHODS:
+        raise FunrecError(f"unknown bench method {config.method!r}; expected one of {list(METHODS)}")
+    if config.ablation_set not in ABLATION_SETS:
+        raise FunrecError(f"unknown ablation set {config.ablation_set!r}; expected one of {list(ABLATION_SETS)}")
+    if config.ablation_set != "none" and config.method != "funrec":
+        raise FunrecError(f"ablation set {config.ablation_set!r} ablates funrec; the method is {config.method!r}")
+    if config.jobs < 1 or not config.timeout_s > 0:
+        raise FunrecError(f"jobs must be >= 1 and timeout_s > 0, got {config.jobs} and {config.timeout_s}")
+    for ablation in config.ablations:
+        if len(ablation) != 2 or not isinstance(ablation[0], str) or not all(isinstance(a, str) for a in ablation[1]):
+            raise FunrecError(f"each ablation must be (label, [extra args]), got {ablation!r}")
+    ablations = tuple((label, tuple(extra)) for label, extra in config.ablations) + ABLATION_SETS[config.ablation_set]
+    labels = [config.method, *(label for label, _ in ablations)]
+    if len(set(labels)) != len(labels):
+        raise FunrecError(f"method and ablation labels must be unique, got {labels}")
+    return ablations
+
+
+def _ablation_captures(captures: list[Path], config: BenchConfig) -> list[Path]:
+    """The captures the ablations run on: ``ablation_sequences`` (in suite order) or all."""
+    if config.ablation_sequences is None:
+        return captures
+    names = [n.strip() for n in config.ablation_sequences.split(",") if n.strip()]
+    unknown = sorted(set(names) - {c.name for c in captures})
+    if unknown or not names:
+        raise FunrecError(
+            f"ablation_sequences {unknown or names} are not among the sequences run: {[c.name for c in captures]}"
+        )
+    return [c for c in captures if c.name in names]
+
+
 def run_bench(
     suite_dir: str | Path,
     out_dir: str | Path,
@@ -437,26 +343,19 @@ def run_bench(
         command_line: recorded in the report; defaults to this process's ``sys.argv``.
 
     Raises:
-        FunrecError: unknown method, duplicate labels, or no sequences to run. A sequence that
+        FunrecError: unknown method or ablation set, duplicate labels, ablation sequences that
+            are not run, or no sequences to run. A sequence that
             crashes or times out is a failure row, never an exception.
     """
-    if config.method not in METHODS:
-        raise FunrecError(f"unknown bench method {config.method!r}; expected one of {list(METHODS)}")
-    labels = [config.method, *(label for label, _ in config.ablations)]
-    if len(set(labels)) != len(labels):
-        raise FunrecError(f"method and ablation labels must be unique, got {labels}")
-    if config.jobs < 1 or not config.timeout_s > 0:
-        raise FunrecError(f"jobs must be >= 1 and timeout_s > 0, got {config.jobs} and {config.timeout_s}")
-    for ablation in config.ablations:
-        if len(ablation) != 2 or not isinstance(ablation[0], str) or not all(isinstance(a, str) for a in ablation[1]):
-            raise FunrecError(f"each ablation must be (label, [extra args]), got {ablation!r}")
+    ablations = _ablations(config)
     suite_dir, out_dir = Path(suite_dir), Path(out_dir)
     date = datetime.now(timezone.utc).isoformat(timespec="seconds")
     captures = _prepare_suite(suite_dir, config)
+    ablation_captures = _ablation_captures(captures, config)
     out_dir.mkdir(parents=True, exist_ok=True)
-    runs = [(config.method, config.method, config.reconstruct_args)]
-    runs += [(label, "funrec", config.reconstruct_args + tuple(extra)) for label, extra in config.ablations]
-    tasks = [(label, method, extra, capture) for label, method, extra in runs for capture in captures]
+    runs = [(config.method, config.method, config.reconstruct_args, captures)]
+    runs += [(label, "funrec", config.reconstruct_args + extra, ablation_captures) for label, extra in ablations]
+    tasks = [(label, method, extra, capture) for label, method, extra, run_captures in runs for capture in run_captures]
     results: dict[tuple[str, str], SequenceResult] = {}
     active: set[int] = set()
     pool = ThreadPoolExecutor(max_workers=config.jobs)
@@ -479,8 +378,8 @@ def run_bench(
         raise
     pool.shutdown()
     methods = []
-    for label, method, extra in runs:
-        rows = tuple(results[(label, c.name)] for c in captures)
+    for label, method, extra, run_captures in runs:
+        rows = tuple(results[(label, c.name)] for c in run_captures)
         command = tuple(_method_command(method, extra, "CAPTURE", "TWIN"))
         methods.append(MethodReport(label, ("python", *command[1:]), rows, summarize(rows)))
     report = BenchReport(
@@ -492,133 +391,10 @@ def run_bench(
     return report
 
 
-TABLE_COLUMNS = (
-    "Axis (deg) rev / pri", "Pos (m)", "State (deg / m) rev / pri", "Fail (%)",
-    "ADD-S (%)", "ADD (%)", "CD (cm)", "mIoU (%)", "ATE (cm)", "frames/s", "peak MB",
-)
-"""Columns of every table: the paper's Tables 1-3 (revolute / prismatic pairs as "XX / YY"),
-then camera ATE, throughput and peak memory."""
-AGGREGATION_NOTE = (
-    "Axis, Pos, State, ADD-S, ADD and mIoU average over non-failed parts; Fail (%) is over all true "
-    "parts (a part fails when no predicted part matches it or its joint type is wrong, and every part "
-    "of a sequence that crashed, timed out or wrote an unreadable twin fails). CD and ATE average over "
-    "scored sequences; frames/s is total frames over total wall time of completed runs; peak MB is the "
-    "largest peak RSS of a run subprocess."
-)
-
-
-def _f(value: float | None, digits: int) -> str:
-    return "-" if value is None else f"{value:.{digits}f}"
-
-
-def _cells(s: BenchSummary) -> list[str]:
-    return [
-        f"{_f(s.axis_revolute_deg, 1)} / {_f(s.axis_prismatic_deg, 1)}",
-        _f(s.pivot_m, 3),
-        f"{_f(s.state_revolute_deg, 1)} / {_f(s.state_prismatic_m, 3)}",
-        _f(s.fail_pct, 1),
-        _f(s.adds_auc, 1),
-        _f(s.add_auc, 1),
-        _f(s.chamfer_cm, 2),
-        _f(s.miou, 1),
-        _f(s.camera_ate_cm, 2),
-        _f(s.frames_per_s, 2),
-        _f(s.peak_rss_mb, 0),
-    ]
-
-
-def _table(first: str, rows: list[tuple[str, list[str]]]) -> list[str]:
-    header = [first, *TABLE_COLUMNS]
-    lines = ["| " + " | ".join(header) + " |", "|" + "|".join(["---"] + [":---:"] * len(TABLE_COLUMNS)) + "|"]
-    lines += ["| " + " | ".join([name, *cells]) + " |" for name, cells in rows]
-    return lines
-
-
-def format_report(report: BenchReport) -> str:
-    """The main table (and the ablation table, if any) as Markdown for the terminal."""
-    lines = _table("Method", [(m.label, _cells(m.summary)) for m in report.methods[:1]])
-    s = report.main.summary
-    lines.append(
-        f"sequences: {s.sequences} ({s.failed_sequences} failed); true parts: {s.parts} "
-        f"({s.failed_parts} failed); invented parts: {s.invented_parts}"
-    )
-    for row in report.main.sequences:
-        if row.status != "ok":
-            lines.append(f"  {row.name}: {row.status}: {row.reason}")
-    if report.ablations:
-        lines += ["", *_table("Ablation", [(m.label, _cells(m.summary)) for m in report.methods])]
-    return "\n".join(lines)
-
-
-def report_to_markdown(report: BenchReport) -> str:
-    """report.md: header, main table, per-sequence tables, ablation table, failure reasons."""
-    lines = [
-        "# FunREC benchmark",
-        "",
-        f"- git commit: `{report.git_commit}`",
-        f"- machine: {report.machine}",
-        f"- date: {report.date}",
-        f"- method: {report.config.method}" + (f" (ablations: {', '.join(m.label for m in report.ablations)})" if report.ablations else ""),
-        f"- command line: `{report.command_line}`",
-        f"- suite: `{report.suite_dir}` ({len(report.main.sequences)} sequences), timeout {report.config.timeout_s:g} s per sequence",
-        "",
-        AGGREGATION_NOTE,
-        "",
-        "## Results",
-        "",
-        *_table("Method", [(report.main.label, _cells(report.main.summary))]),
-    ]
-    if report.ablations:
-        lines += ["", "## Ablations", "", *_table("Variant", [(m.label, _cells(m.summary)) for m in report.methods])]
-    for method in report.methods:
-        lines += ["", f"## Per sequence: {method.label}", "", f"Command: `{shlex.join(method.command)}`", ""]
-        lines += _table("Sequence", [(r.name, _cells(summarize([r]))) for r in method.sequences])
-        failures = [r for r in method.sequences if r.status != "ok"]
-        part_failures = [(r.name, p) for r in method.sequences if r.status == "ok" for p in r.evaluation.parts if p.failed]
-        if failures or part_failures:
-            lines += ["", "Failures:", ""]
-            lines += [f"- {r.name}: {r.status}: {r.reason}" for r in failures]
-            lines += [f"- {name} / {p.true_name}: {p.failure}" for name, p in part_failures]
-    return "\n".join(lines) + "\n"
-
-
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, Path):
-        return str(value)
-    if isinstance(value, dict):
-        return {k: _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    return value
-
-
-def report_to_json(report: BenchReport) -> dict[str, Any]:
-    """report.json: the header, the config, and per method its summary and every sequence."""
-    methods = []
-    for method in report.methods:
-        rows = []
-        for r in method.sequences:
-            row = {f.name: getattr(r, f.name) for f in dataclasses.fields(r) if f.name != "evaluation"}
-            row["frames_per_s"] = r.frames_per_s
-            row["evaluation"] = evaluation_to_json(r.evaluation)
-            rows.append(_jsonable(row))
-        methods.append({"label": method.label, "command": list(method.command), "summary": dataclasses.asdict(method.summary), "sequences": rows})
-    return {
-        "format": "funrec-bench/1",
-        "git_commit": report.git_commit,
-        "machine": report.machine,
-        "date": report.date,
-        "command_line": report.command_line,
-        "suite_dir": str(report.suite_dir),
-        "out_dir": str(report.out_dir),
-        "config": _jsonable(dataclasses.asdict(report.config)),
-        "aggregation": AGGREGATION_NOTE,
-        "methods": methods,
-    }
-
-
 __all__ = [
+    "ABLATION_SETS",
     "METHODS",
+    "STANDARD_ABLATIONS",
     "BenchConfig",
     "BenchReport",
     "BenchSummary",

@@ -65,6 +65,9 @@ class PointTrackConfig:
     wide. Each free cell seeds its best-textured pixel."""
     seed_radius: float = 0.75
     """No new track is seeded closer than this many grid steps to a live track."""
+    reseed: bool = True
+    """Seed new tracks during the capture; off follows only frame 0's seeds, so surfaces
+    revealed later get no track (ablation)."""
     reseed_every: int = 3
     """Frames between two seeding passes (frame 0 is always seeded)."""
     corners_per_seed: int = 200
@@ -261,7 +264,7 @@ def track_points(
         state.finished_long += int(np.sum(~alive & (state.visible_count >= config.min_track_length)))
         state.keep(alive)
         observed_ids, observed_uv, observed_p = [state.ids[visible[alive]]], [state.uv[visible[alive]]], [p_world[visible]]
-        if frame % config.reseed_every == 0:
+        if frame % config.reseed_every == 0 and (config.reseed or frame == 0):
             budget = min(config.max_alive - len(state.ids), config.max_tracks - len(state.ids) - state.finished_long)
             if budget > 0:
                 uv_new = _seed(gray, depth_m, allowed, state.uv, budget, config)
@@ -281,8 +284,9 @@ def track_points(
 
 def _assemble(log: list[tuple[np.ndarray, np.ndarray, np.ndarray]], total: int, F: int,
               config: PointTrackConfig) -> PointTracks:
-    """Dense (F, N, ...) arrays from the per-frame observation log, keeping tracks seen in
-    at least ``min_track_length`` frames (the longest ``max_tracks`` if more)."""
+    """Dense (F, N, ...) arrays from the per-frame observation log (consumed: emptied as the
+    arrays fill), keeping tracks seen in at least ``min_track_length`` frames (the longest
+    ``max_tracks`` if more)."""
     counts = np.zeros(total, np.int64)
     for ids, _, _ in log:
         counts[ids] += 1
@@ -295,7 +299,9 @@ def _assemble(log: list[tuple[np.ndarray, np.ndarray, np.ndarray]], total: int, 
     p_world = np.full((F, N, 3), np.nan)
     uv = np.full((F, N, 2), np.nan)
     visible = np.zeros((F, N), dtype=bool)
-    for frame, (ids, frame_uv, frame_p) in enumerate(log):
+    log.reverse()  # pop() now yields frame 0 first; each frame's log is freed once copied
+    for frame in range(F):
+        ids, frame_uv, frame_p = log.pop()
         columns = column[ids]
         kept = columns >= 0
         p_world[frame, columns[kept]] = frame_p[kept]

@@ -136,6 +136,9 @@ class TrackingConfig:
     max_stored_keyframes: int = 200
     """Keyframes whose ORB features are kept for loop closure; when full the most
     redundant one (closest in pose to another) is dropped. Bounds memory to ~25 MB."""
+    use_pose_graph: bool = True
+    """Close loops between keyframes (ORB) and optimise the keyframe pose graph; off keeps the
+    chained frame-to-keyframe odometry (ablation)."""
     pose_graph_distance_m: float = 0.03
     """Open3D's max_correspondence_distance: residual scale of the loop-closure line process."""
     min_tracked_fraction: float = 0.3
@@ -412,7 +415,8 @@ def track_camera(capture: Capture, config: TrackingConfig = TrackingConfig(),
                 node_of_frame[frame_index], T_node_camera[frame_index] = parent + 1, np.eye(4)
                 uv, p_keyframe, current = start_keyframe(frame_index, frame, uv, p_camera)
                 keyframe_size, T_node_previous = len(uv), np.eye(4)
-                for candidate in _loop_candidates(store, current.T_world_camera, {parent}, config):
+                closable = store if config.use_pose_graph else []
+                for candidate in _loop_candidates(closable, current.T_world_camera, {parent}, config):
                     result = _register_orb(candidate, current, K, config, rng)
                     if result is not None:
                         edges.append((candidate.node, current.node, result[0], result[1], True))
@@ -453,7 +457,7 @@ def track_camera(capture: Capture, config: TrackingConfig = TrackingConfig(),
         )
     if failures:
         logger.info("%d of %d frames interpolated: %s", F - tracked.sum(), F, dict(failures))
-    T_world_node_opt = _optimise(T_world_node, edges, config)
+    T_world_node_opt = _optimise(T_world_node, edges, config) if config.use_pose_graph else np.array(T_world_node)
     T_world_camera = T_world_node_opt[node_of_frame] @ T_node_camera
     T_world_camera = _interpolate_untracked(T_world_camera, tracked)
     return CameraTrajectory(T_world_camera, np.array(keyframe_frames, dtype=np.int64), tracked, inlier_count)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from pathlib import Path
@@ -10,10 +11,12 @@ import numpy as np
 import pytest
 from test_evaluate import write_tiny_sequence
 
-from funrec import bench
+from funrec import bench, bench_report
 from funrec.bench import BenchConfig, format_report, run_bench, summarize
+from funrec.config import add_config_arguments, config_from_args
 from funrec.errors import FunrecError
 from funrec.evaluate import PartEvaluation, TwinEvaluation
+from funrec.pipeline import ReconstructConfig
 
 SEQUENCES = ("seq_a", "seq_b")
 
@@ -50,6 +53,9 @@ def test_oracle_bench_is_perfect_and_writes_reports(suite, tmp_path):
     assert s.adds_auc > 99.999 and s.add_auc > 99.999 and s.miou == pytest.approx(100.0)
     assert s.chamfer_cm < 1e-3 and s.camera_ate_cm < 1e-3
     assert s.frames_per_s > 0 and s.peak_rss_mb > 10  # a Python child with numpy uses tens of MB
+    # CPU throughput is at least wall throughput for a single-threaded child (CPU time <= wall
+    # time), and a child importing numpy uses some CPU time.
+    assert s.frames_per_cpu_s >= s.frames_per_s and all(r.cpu_s > 0 for r in report.main.sequences)
     markdown = (tmp_path / "out" / "report.md").read_text()
     for needle in ("git commit:", "machine:", "date:", "method: oracle", "`funrec bench --method oracle`", "| Method |", "| seq_a |", "Fail (%)"):
         assert needle in markdown
@@ -86,6 +92,49 @@ def test_failing_reconstruction_and_ablations_are_failure_rows(suite, tmp_path):
     _load_strict_json(tmp_path / "out" / "report.json")
 
 
+def test_standard_ablations_run_on_a_subset_and_compare_on_it(suite, tmp_path, monkeypatch):
+    # Every run writes the oracle twin, so rows are scored without reconstructing; the calls
+    # show which extra arguments each (label, sequence) run received.
+    calls = []
+    oracle_command = bench._method_command
+
+    def fake(method, extra, capture, twin):
+        calls.append((method, tuple(extra), Path(capture).name))
+        return oracle_command("oracle", extra, capture, twin)
+
+    monkeypatch.setattr(bench, "_method_command", fake)
+    config = _config(method="funrec", ablation_set="standard", ablation_sequences="seq_b")
+    report = run_bench(suite, tmp_path / "out", config)
+    labels = [label for label, _ in bench.STANDARD_ABLATIONS]
+    assert [m.label for m in report.methods] == ["funrec", *labels]
+    assert [r.name for r in report.main.sequences] == list(SEQUENCES)
+    for method, (_, flags) in zip(report.ablations, bench.STANDARD_ABLATIONS):
+        assert [r.name for r in method.sequences] == ["seq_b"] and method.summary.failed_sequences == 0
+        assert ("funrec", flags, "seq_b") in calls and ("funrec", flags, "seq_a") not in calls
+    heading, rows = bench_report.ablation_rows(report)
+    assert heading == "1 of 2 sequences: seq_b"
+    assert [label for label, _ in rows] == ["funrec (full)", *labels]
+    assert rows[0][1].sequences == 1  # the full method is summarised over the ablation sequences only
+    markdown = (tmp_path / "out" / "report.md").read_text()
+    assert "## Ablations (1 of 2 sequences: seq_b)" in markdown and "| no re-seeding |" in markdown
+    assert "Ablations (1 of 2 sequences: seq_b):" in format_report(report)
+
+
+def test_standard_ablation_flags_each_switch_off_one_stage():
+    parser = argparse.ArgumentParser()
+    add_config_arguments(parser, ReconstructConfig)
+    defaults = ReconstructConfig()
+    switched = {}
+    for label, flags in bench.STANDARD_ABLATIONS:
+        config = config_from_args(ReconstructConfig, parser.parse_args(list(flags)))
+        assert config != defaults, label
+        switched[label] = config
+    assert not switched["no pose graph"].tracking.use_pose_graph
+    assert not switched["no joint constraint"].part_motion.use_joint_constraint
+    assert not switched["no re-seeding"].point_tracks.reseed
+    assert not switched["no hand masks"].use_hand_masks
+
+
 def test_timeout_is_a_failure_row(suite, tmp_path, monkeypatch):
     monkeypatch.setattr(bench, "_method_command", lambda *args: [sys.executable, "-c", "import time; time.sleep(60)"])
     report = run_bench(suite, tmp_path / "out", _config(method="funrec", timeout_s=0.5, only=("seq_a",)))
@@ -100,6 +149,9 @@ def test_child_peak_memory_is_the_childs_own(tmp_path):
     result = bench._run_child([sys.executable, "-c", "import numpy as np; a = np.ones(12_500_000); a.sum()"], tmp_path / "log.txt", 60.0)
     assert result.returncode == 0 and not result.timed_out
     assert result.peak_rss_mb > 100.0
+    # Writing 100 MB and importing numpy takes well over 10 ms of CPU; CPU time of one thread
+    # cannot exceed the wall time (+10 ms for clock granularity).
+    assert 0.01 < result.cpu_s <= result.wall_s + 0.01
     # Linux carries the peak RSS of a process across fork and exec; the launcher keeps a
     # 200 MB bench from showing up as the peak of a child that does nothing (~10 MB).
     ballast = np.ones(25_000_000)
@@ -123,13 +175,19 @@ def test_bad_requests_raise(suite, tmp_path):
         run_bench(suite, tmp_path, _config(method="oracle", only=("seq_z",)))
     with pytest.raises(FunrecError, match="unique"):
         run_bench(suite, tmp_path, _config(method="oracle", ablations=(("oracle", ()),)))
+    with pytest.raises(FunrecError, match="unknown ablation set"):
+        run_bench(suite, tmp_path, _config(ablation_set="everything"))
+    with pytest.raises(FunrecError, match="ablates funrec"):
+        run_bench(suite, tmp_path, _config(method="oracle", ablation_set="standard"))
+    with pytest.raises(FunrecError, match="not among the sequences run"):
+        run_bench(suite, tmp_path, _config(method="oracle", ablations=(("x", ()),), only=("seq_a",), ablation_sequences="seq_b"))
     with pytest.raises(FunrecError, match="no sequences"):
         run_bench(tmp_path / "empty", tmp_path / "out", _config(method="oracle"))
 
 
-def _row(parts, status="ok", chamfer=None, frames=10, wall=2.0):
+def _row(parts, status="ok", chamfer=None, frames=10, wall=2.0, cpu=1.0):
     evaluation = TwinEvaluation(Path("t"), Path("g"), tuple(parts), None if status == "ok" else "x", (), chamfer, 1.0)
-    return bench.SequenceResult("s", "m", status, None, frames, wall, 50.0, evaluation, Path("t"), None)
+    return bench.SequenceResult("s", "m", status, None, frames, wall, 50.0, evaluation, Path("t"), None, cpu)
 
 
 def test_summary_averages_over_non_failed_parts_and_fails_over_all():
@@ -145,4 +203,5 @@ def test_summary_averages_over_non_failed_parts_and_fails_over_all():
     assert s.miou == pytest.approx(60.0)  # parts without an mIoU (no true mask) are left out
     assert s.chamfer_cm == pytest.approx(3.0)
     assert s.frames_per_s == pytest.approx(20 / 4.0)  # the timed-out run's time is not throughput
+    assert s.frames_per_cpu_s == pytest.approx(20 / 2.0)
     assert s.failed_sequences == 1 and s.peak_rss_mb == 50.0

@@ -127,6 +127,19 @@ def test_no_track_is_seeded_on_a_masked_hand(tmp_path):
         assert not np.any(label[uv[:, 1], uv[:, 0]] == LABEL_HAND), frame
 
 
+def test_without_reseeding_only_frame_0_is_seeded(door_run, tmp_path):
+    """The re-seeding ablation: no track starts after frame 0, so the interior revealed by the
+    opening door gets none (with re-seeding, test_reseeding_tracks_the_revealed_interior finds
+    at least 10)."""
+    scene, reseeded, _ = door_run
+    root = write_scene(scene, tmp_path / "door")
+    tracks = track_points(load_capture(root), true_trajectory(scene), PointTrackConfig(reseed=False))
+    first, labels = seed_labels(scene, tracks)
+    assert tracks.num_tracks > 100 and np.all(first == 0)
+    assert not np.any(labels == LABEL_INTERIOR)
+    assert tracks.num_tracks < reseeded.num_tracks
+
+
 def test_track_budget_is_respected(door_run, tmp_path):
     scene, _, _ = door_run
     root = write_scene(make_scene(8), tmp_path / "small")

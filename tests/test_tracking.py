@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from funrec import tracking
 from funrec.capture import CaptureIntrinsics, CaptureWriter, load_capture
 from funrec.errors import ReconstructionError
 from funrec.geometry.transforms import invert_transform, make_transform, rotation_about_axis
@@ -242,6 +243,22 @@ def test_failed_frames_are_interpolated_and_flagged(scenes, tmp_path):
     # The interpolated pose lies between its neighbours.
     t = trajectory.T_world_camera[:, :3, 3]
     assert np.linalg.norm(t[10] - t[9]) < np.linalg.norm(t[12] - t[9]) + 1e-9
+
+
+def test_without_pose_graph_no_loop_is_closed(scenes, monkeypatch):
+    """The pose-graph ablation: chained odometry only (no ORB loop closure, no optimisation),
+    which still tracks this short, texture-rich sweep to the same tolerance."""
+    scene, root = scenes["plain"]
+
+    def forbidden(*args, **kwargs):
+        raise AssertionError("the pose graph is off")
+
+    monkeypatch.setattr(tracking, "_register_orb", forbidden)
+    monkeypatch.setattr(tracking, "_optimise", forbidden)
+    trajectory = track_camera(load_capture(root), TrackingConfig(use_pose_graph=False))
+    assert trajectory.tracked.all()
+    rmse, rot_deg = ate_m(trajectory.T_world_camera, scene.T_world_camera)
+    assert rmse < 0.01 and rot_deg < 0.5, (rmse, rot_deg)
 
 
 def test_relocalises_after_losing_every_track(scenes, tmp_path):

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import trimesh
+from scipy.spatial import ConvexHull
 
 from funrec.errors import ExportError
 from funrec.typed import FloatArray
@@ -125,8 +126,25 @@ def convex_piece(points: FloatArray, min_thickness_m: float) -> trimesh.Trimesh 
         if extent < min_thickness_m:
             pad = 0.5 * (min_thickness_m - extent)
             points = np.concatenate([points - pad * direction, points + pad * direction])
-    hull = trimesh.convex.convex_hull(points)
+    hull = _hull_mesh(points)
     return hull if hull.volume > 0.0 else None
+
+
+def _hull_mesh(points: FloatArray) -> trimesh.Trimesh:
+    """Convex hull of (N, 3) full-dimensional points as a watertight mesh with outward normals.
+
+    scipy's Qhull directly, with trimesh's Qhull options: ``trimesh.convex.convex_hull`` runs
+    the same Qhull and then repairs winding and normals face by face, which made it most of the
+    static-scene export (a few hundred grid pieces).
+    """
+    hull = ConvexHull(points, qhull_options="QbB Pp Qt")
+    faces = hull.simplices.astype(np.int64)
+    corners = points[faces]
+    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    inward = np.einsum("ij,ij->i", normals, hull.equations[:, :3]) < 0.0
+    faces[inward] = faces[inward][:, ::-1]
+    used, faces = np.unique(faces, return_inverse=True)
+    return trimesh.Trimesh(points[used], faces.reshape(-1, 3), process=False)
 
 
 def cluster_vertices(mesh: trimesh.Trimesh, cell_m: float) -> trimesh.Trimesh:
@@ -190,14 +208,21 @@ def _coacd_point_sets(mesh: trimesh.Trimesh, config: CollisionConfig, name: str)
 
 def _grid_point_sets(mesh: trimesh.Trimesh, cell_m: float) -> list[FloatArray]:
     """Vertices of the triangles whose centres fall in each occupied grid cell."""
-    keys = np.floor(np.asarray(mesh.triangles_center) / cell_m).astype(np.int64)
-    _, cell = np.unique(keys, axis=0, return_inverse=True)
-    cell = cell.ravel()
-    order = np.argsort(cell, kind="stable")
-    starts = np.searchsorted(cell[order], np.arange(cell.max() + 2))
-    faces = np.asarray(mesh.faces)
+    faces = np.asarray(mesh.faces, dtype=np.int64)
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
-    return [vertices[np.unique(faces[order[a:b]])] for a, b in zip(starts[:-1], starts[1:]) if b > a]
+    # Centres summed corner by corner: mesh.triangles_center would cache (F, 3, 3) corners on
+    # the mesh (30 MB for a 400k-triangle room) for the rest of the export.
+    centres = (vertices[faces[:, 0]] + vertices[faces[:, 1]] + vertices[faces[:, 2]]) / 3.0
+    keys = np.floor(centres / cell_m).astype(np.int64)
+    keys -= keys.min(axis=0)
+    # One integer per cell in lexicographic (x, y, z) order: np.unique on it is several times
+    # faster than np.unique(keys, axis=0), which sorts structured rows.
+    _, cell = np.unique(np.ravel_multi_index(keys.T, tuple(keys.max(axis=0) + 1)), return_inverse=True)
+    # Each (cell, vertex) pair once, sorted by cell then vertex: the vertices of every cell.
+    pairs = np.unique(np.repeat(cell.ravel(), 3) * len(vertices) + faces.ravel())
+    pair_cell, pair_vertex = np.divmod(pairs, len(vertices))
+    splits = np.flatnonzero(np.diff(pair_cell)) + 1
+    return [vertices[group] for group in np.split(pair_vertex, splits)]
 
 
 __all__ = ["DECOMPOSITION_METHODS", "CollisionConfig", "cluster_vertices", "convex_piece", "decompose"]
