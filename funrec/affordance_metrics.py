@@ -1,10 +1,11 @@
 """Score a twin's affordances.json against synthetic ground truth: distance from each contact
 point to the true handle centre, and the overlap of the holds with the true hold intervals.
 
-Parts are paired as :func:`funrec.evaluate.evaluate_twin` pairs them. Both sides are compared in
-their own camera-0 frame (FORMATS.md section 5). The twin's contact point is at the twin part's
-canonical state (state 0), which is not the true canonical state (closed): the true handle is
-moved to the true state that corresponds to twin state 0 before measuring.
+Parts are paired, and the contact error measured, by :func:`funrec.evaluate.evaluate_twin`
+(``PartEvaluation.contact_error_m``): both sides in their own camera-0 frame (FORMATS.md
+section 5), the contact point and the true handle each moved to its part's state at the first
+common tracked frame, so that the two canonical states (twin: first tracked; truth: closed) do
+not matter. This module adds the hold intervals and the tolerance.
 """
 
 from __future__ import annotations
@@ -14,15 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from funrec import metrics
 from funrec.affordances import read_affordances
-from funrec.camera_poses import read_camera_poses
 from funrec.errors import FunrecError
 from funrec.evaluate import TwinEvaluation, evaluate_twin
-from funrec.geometry.joints import joint_transform
-from funrec.geometry.transforms import invert_transform, transform_points
 from funrec.ground_truth import read_ground_truth
-from funrec.twin_format import read_articulation
 
 CONTACT_TOLERANCE_M = 0.03
 """A contact point within this of the true handle centre counts as correct (the target is 90 %
@@ -95,46 +91,26 @@ def evaluate_affordances(
         return AffordanceEvaluation(twin_dir, gt.root, tuple(PartAffordanceScore(p.part.name, failure=reason) for p in gt.parts), reason)
     try:
         affordances = read_affordances(twin_dir)
-        articulation = read_articulation(twin_dir)
-        T_camera0_twin = invert_transform(read_camera_poses(twin_dir / "camera_poses.txt").T_world_camera[0])
     except FunrecError as exc:
         reason = f"twin unreadable: {exc}"
         return AffordanceEvaluation(twin_dir, gt.root, tuple(PartAffordanceScore(p.part.name, failure=reason) for p in gt.parts), reason)
-    T_camera0_gt = invert_transform(gt.T_world_camera[0])
-    predicted = {p.name: p for p in articulation.parts}
     scores = []
     for gt_part, part_eval in zip(gt.parts, evaluation.parts):
         true = gt_part.part
         name = part_eval.predicted_name
-        if name is None or name not in predicted:
-            scores.append(PartAffordanceScore(true.name, None, part_eval.failure or "no part found"))
+        if name is None or part_eval.failure is not None:
+            scores.append(PartAffordanceScore(true.name, name, part_eval.failure or "no part found"))
             continue
-        pred = predicted[name]
         affordance = affordances.part(name)
-        if pred.joint_type != true.joint_type:
-            scores.append(PartAffordanceScore(true.name, name, f"wrong joint type: predicted {pred.joint_type}, true {true.joint_type}"))
-            continue
-        if affordance is None:
+        if affordance is None or part_eval.contact_error_m is None:
             reason = dict(affordances.missing).get(name, "not in affordances.json")
             scores.append(PartAffordanceScore(true.name, name, f"no affordance ({reason})"))
             continue
-        # Twin state 0 <-> true state at the twin's first tracked frame, shifted by the twin's
-        # state there (0 by convention) with the axis sign of FORMATS.md section 5.
-        sign = metrics.axis_sign(T_camera0_twin[:3, :3] @ pred.axis_world, T_camera0_gt[:3, :3] @ true.axis_world)
-        first = int(pred.frames[0]) if len(pred.frames) else 0
-        true_state = float(np.interp(first, true.frames, true.states)) - sign * (float(pred.states[0]) if len(pred.states) else 0.0)
-        T_true = joint_transform(true.joint_type, true.axis_world, true.pivot_world, true_state)
-        p_handle = transform_points(T_camera0_gt @ T_true, gt_part.handle_world[None])[0]
-        p_contact = transform_points(T_camera0_twin, affordance.contact_point[None])[0]
         held = np.unique(np.concatenate([i.frames for i in affordance.interactions]))
         truth = np.unique(np.concatenate([np.arange(a, b + 1) for a, b in gt_part.intervals])) if gt_part.intervals else np.zeros(0, int)
         union = len(np.union1d(held, truth))
-        scores.append(
-            PartAffordanceScore(
-                true.name, name, None, float(np.linalg.norm(p_contact - p_handle)),
-                len(np.intersect1d(held, truth)) / union if union else None,
-            )
-        )
+        iou = len(np.intersect1d(held, truth)) / union if union else None
+        scores.append(PartAffordanceScore(true.name, name, None, part_eval.contact_error_m, iou))
     return AffordanceEvaluation(twin_dir, gt.root, tuple(scores))
 
 

@@ -18,12 +18,14 @@ import trimesh
 from scipy.optimize import linear_sum_assignment
 
 from funrec import metrics
+from funrec.affordances import AFFORDANCES_FILE, Affordances, read_affordances
 from funrec.camera_poses import read_camera_poses
 from funrec.capture import read_mask
 from funrec.errors import FormatError, FunrecError
 from funrec.geometry.joints import joint_transform
 from funrec.geometry.transforms import invert_transform, transform_points
 from funrec.ground_truth import GroundTruth, read_ground_truth
+from funrec.hands import TWIN_HAND_MASKS
 from funrec.twin_format import ArticulatedPart, read_articulation
 from funrec.typed import BoolArray, FloatArray
 
@@ -90,6 +92,10 @@ class PartEvaluation:
     """ADD area under the 0-10 cm accuracy curve, percent."""
     miou: float | None = None
     """Mean mask IoU over the common tracked frames with a non-empty true mask, percent."""
+    contact_error_m: float | None = None
+    """Distance from the part's contact point (affordances.json) to the true handle centre,
+    metres, both posed at the first common tracked frame (camera-0 frames); None when the
+    twin has no affordance for the part."""
 
     @property
     def failed(self) -> bool:
@@ -120,6 +126,10 @@ class TwinEvaluation:
     """Camera ATE in the camera-0 frame (see :func:`funrec.metrics.camera_ate`), cm."""
     warnings: tuple[str, ...] = ()
     """Non-fatal remarks (predicted part without a mesh, frames without a pose, ...)."""
+    hand_iou: float | None = None
+    """Mean IoU of the twin's detected hand masks (``masks/hand/``) and the true hand masks over
+    the frames where either is non-empty, percent; None when the twin has no detected hand masks
+    (none written, or affordances.json says they are the capture's own)."""
 
     @property
     def ok(self) -> bool:
@@ -154,8 +164,14 @@ def _in_camera0(part: ArticulatedPart, T_camera0_world: FloatArray) -> tuple[Flo
     return axis, pivot
 
 
-def _load_ply(path: Path) -> trimesh.Trimesh | FloatArray:
-    """A mesh with faces as a Trimesh; a PLY with vertices only as (N, 3) points."""
+def load_ply(path: str | Path) -> trimesh.Trimesh | FloatArray:
+    """A twin or ground-truth PLY: a mesh with faces as a Trimesh, a PLY with vertices only as
+    (N, 3) points.
+
+    Raises:
+        FormatError: missing or unreadable file, or no (or non-finite) vertices.
+    """
+    path = Path(path)
     if not path.is_file():
         raise FormatError(path, "file is missing")
     try:
@@ -175,7 +191,7 @@ def _load_ply(path: Path) -> trimesh.Trimesh | FloatArray:
 def _surface_points(path: Path, T_camera0_world: FloatArray, config: EvalConfig, rng: np.random.Generator) -> FloatArray:
     """(N, 3) camera-0 points of a predicted PLY: uniform surface samples of a mesh with faces
     (one per ``surface_spacing_m**2``), or all vertices of a point-only PLY."""
-    loaded = _load_ply(path)
+    loaded = load_ply(path)
     if isinstance(loaded, trimesh.Trimesh):
         area = float(loaded.area)
         if not area > 0.0:  # only degenerate faces: nothing to sample
@@ -188,7 +204,7 @@ def _surface_points(path: Path, T_camera0_world: FloatArray, config: EvalConfig,
 
 def _load_points(path: Path) -> FloatArray:
     """(N, 3) vertices of a ground-truth point PLY (faces, if any, are ignored)."""
-    loaded = _load_ply(path)
+    loaded = load_ply(path)
     return np.asarray(loaded.vertices, dtype=np.float64) if isinstance(loaded, trimesh.Trimesh) else loaded
 
 
@@ -369,6 +385,63 @@ def _camera_ate_cm(T_camera0_camera_pred: dict[int, FloatArray], T_camera0_camer
     return 100.0 * metrics.camera_ate(T_pred, T_camera0_camera_true[frames])
 
 
+def _read_affordances(twin_dir: Path, warnings: list[str]) -> Affordances | None:
+    """The twin's affordances.json, or None without one; a malformed file is a warning (the
+    articulation is still scored)."""
+    path = twin_dir / AFFORDANCES_FILE
+    if not path.is_file():
+        return None
+    try:
+        return read_affordances(path)
+    except FunrecError as exc:
+        warnings.append(f"affordances not scored: {exc}")
+        return None
+
+
+def _contact_errors(
+    twin_dir: Path, gt: GroundTruth, truth: list[_Part], pred: list[_Part], matches: dict[int, tuple[int, float]], affordances: Affordances
+) -> dict[int, float]:
+    """True part index -> distance (m) from the matched twin part's contact point to the true
+    handle centre, both moved to their state at the first common tracked frame (camera-0
+    frames), so that the two sides' canonical states do not matter."""
+    T_camera0_twin = invert_transform(read_camera_poses(twin_dir / "camera_poses.txt").T_world_camera[0])
+    T_camera0_gt = invert_transform(gt.T_world_camera[0])
+    errors = {}
+    for k, (j, _) in matches.items():
+        affordance = affordances.part(pred[j].articulated.name)
+        if affordance is None:
+            continue
+        first = int(metrics.common_frames(pred[j].articulated.frames, truth[k].articulated.frames)[0][0])
+        p_contact = transform_points(pred[j].T_posed_canonical(first) @ T_camera0_twin, affordance.contact_point[None])[0]
+        p_handle = transform_points(truth[k].T_posed_canonical(first) @ T_camera0_gt, gt.parts[k].handle_world[None])[0]
+        errors[k] = float(np.linalg.norm(p_contact - p_handle))
+    return errors
+
+
+def _hand_iou_percent(twin_dir: Path, gt: GroundTruth, affordances: Affordances | None) -> float | None:
+    """Mean IoU (%) of the twin's detected hand masks and the true ones over the frames where
+    either is non-empty (a missing file is an empty mask); None without detected masks."""
+    pred_masks = _mask_files(twin_dir / TWIN_HAND_MASKS)
+    if not pred_masks or (affordances is not None and affordances.hand_source != "detected"):
+        return None
+    true_masks = _mask_files(gt.root / "masks" / "hand")
+    ious = []
+    for frame in range(gt.frame_count):
+        mask_true = read_mask(true_masks[frame]) if frame in true_masks else None
+        mask_pred = read_mask(pred_masks[frame]) if frame in pred_masks else None
+        if mask_true is None or not mask_true.any():
+            if mask_pred is not None and mask_pred.any():
+                ious.append(0.0)
+            continue
+        if mask_pred is None:
+            ious.append(0.0)
+            continue
+        if mask_pred.shape != mask_true.shape:
+            raise FormatError(pred_masks[frame], f"mask is {mask_pred.shape}, true hand mask is {mask_true.shape}")
+        ious.append(metrics.mask_iou(mask_pred, mask_true))
+    return 100.0 * float(np.mean(ious)) if ious else None
+
+
 def _true_part_names(gt_dir: Path) -> tuple[tuple[str, str], ...]:
     try:
         gt = read_ground_truth(gt_dir)
@@ -417,6 +490,12 @@ def evaluate_twin(twin_dir: str | Path, gt_dir: str | Path, config: EvalConfig =
       their canonical state.
     - Camera ATE (cm): RMSE of camera positions in the camera-0 frame without further
       alignment, over the frames with a predicted pose (FORMATS.md does not define ATE).
+    - Affordances, when the twin has affordances.json: per matched part (right joint type)
+      ``contact_error_m``, the distance from its contact point to the true handle centre with
+      both moved to their state at the first common tracked frame (camera-0 frames); per
+      sequence ``hand_iou`` (%), when the twin holds detected hand masks in
+      ``masks/hand/`` (:data:`funrec.hands.TWIN_HAND_MASKS`): mean IoU with gt/masks/hand over
+      the frames where either mask is non-empty. A malformed affordances.json is a warning.
 
     Never raises on a bad twin: a missing or malformed file (any FunrecError, including a
     predicted mask whose size differs from the true mask) yields an evaluation whose
@@ -438,22 +517,26 @@ def evaluate_twin(twin_dir: str | Path, gt_dir: str | Path, config: EvalConfig =
     try:
         pred, pred_static, T_camera0_camera_pred = _load_prediction(twin_dir, config, rng, warnings)
         matches, reasons = _match(truth, pred, config)
+        affordances = _read_affordances(twin_dir, warnings)
+        contact = {} if affordances is None else _contact_errors(twin_dir, gt, truth, pred, matches, affordances)
         part_evaluations = []
         for k, true_part in enumerate(truth):
             if k in matches:
                 j, cost = matches[k]
-                part_evaluations.append(_score_pair(twin_dir, gt, true_part, pred[j], cost, config, rng))
+                scored = _score_pair(twin_dir, gt, true_part, pred[j], cost, config, rng)
+                part_evaluations.append(scored if scored.failed else replace(scored, contact_error_m=contact.get(k)))
             else:
                 part_evaluations.append(PartEvaluation(true_part.articulated.name, true_part.articulated.joint_type, failure=reasons[k]))
         matched = {j for j, _ in matches.values()}
         invented = tuple(p.articulated.name for j, p in enumerate(pred) if j not in matched)
         chamfer_cm = _scene_chamfer_cm(truth, true_static, pred, pred_static, matches)
         ate_cm = _camera_ate_cm(T_camera0_camera_pred, T_camera0_camera_true, warnings)
+        hand_iou = _hand_iou_percent(twin_dir, gt, affordances)
     except FunrecError as exc:
         return failed_evaluation(twin_dir, gt.root, f"twin unreadable: {exc}")
     for warning in warnings:
         LOGGER.warning("%s: %s", twin_dir, warning)
-    return TwinEvaluation(twin_dir, gt.root, tuple(part_evaluations), None, invented, chamfer_cm, ate_cm, tuple(warnings))
+    return TwinEvaluation(twin_dir, gt.root, tuple(part_evaluations), None, invented, chamfer_cm, ate_cm, tuple(warnings), hand_iou)
 
 
 def _fmt(value: float | None, digits: int, unit: str = "") -> str:
@@ -470,6 +553,7 @@ def format_evaluation(evaluation: TwinEvaluation) -> str:
         lines.append(
             f"  camera ATE {_fmt(ev.camera_ate_cm, 2, ' cm')} | scene CD {_fmt(ev.chamfer_cm, 2, ' cm')} | "
             f"invented parts {len(ev.invented_parts)}{' (' + ', '.join(ev.invented_parts) + ')' if ev.invented_parts else ''}"
+            + ("" if ev.hand_iou is None else f" | hand IoU {ev.hand_iou:.1f} %")
         )
     for part in ev.parts:
         head = f"  {part.true_name} ({part.joint_type})"
@@ -482,7 +566,8 @@ def format_evaluation(evaluation: TwinEvaluation) -> str:
         lines.append(
             f"{head}: axis {_fmt(part.axis_error_deg, 2, ' deg')}, {pivot}"
             f"state {_fmt(part.state_error, 3 if part.state_unit == 'm' else 2, ' ' + part.state_unit)}, "
-            f"ADD-S {_fmt(part.adds_auc, 1, ' %')}, ADD {_fmt(part.add_auc, 1, ' %')}, mIoU {_fmt(part.miou, 1, ' %')} "
+            f"ADD-S {_fmt(part.adds_auc, 1, ' %')}, ADD {_fmt(part.add_auc, 1, ' %')}, mIoU {_fmt(part.miou, 1, ' %')}, "
+            f"contact {_fmt(None if part.contact_error_m is None else 100.0 * part.contact_error_m, 1, ' cm')} "
             f"({part.common_frames} common frames)"
         )
     if not ev.parts and ev.failure is None:
@@ -511,4 +596,5 @@ __all__ = [
     "evaluation_to_json",
     "failed_evaluation",
     "format_evaluation",
+    "load_ply",
 ]

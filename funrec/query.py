@@ -3,9 +3,11 @@ a part at any joint state (the canonical grasp moved by the part's joint)."""
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -129,26 +131,61 @@ def format_parts(rows: tuple[PartRow, ...]) -> str:
 
 
 def format_grasp(part: str, state: float, T_world_grasp: FloatArray) -> str:
-    """The grasp frame of a part at a state as text: position and axes (for the CLI)."""
+    """The grasp frame of a part at a state as text: the 4x4, then position and axes (for the CLI)."""
     T = np.asarray(T_world_grasp, dtype=np.float64)
     lines = [f"{part} at state {state:g}: T_world_grasp (z approach, x along the handle, y across)"]
     lines += ["  " + " ".join(f"{v + 0.0:+.4f}" for v in row) for row in T]
+    for label, column in (("position (m)", 3), ("approach (z)", 2), ("handle axis (x)", 0), ("finger axis (y)", 1)):
+        lines.append(f"  {label + ':':17s}" + " ".join(f"{v + 0.0:+.4f}" for v in T[:3, column]))
     return "\n".join(lines)
 
 
-def query_text(twin_dir: str | Path, part: str | None = None, state: float | None = None) -> str:
-    """What ``funrec query TWIN [--part NAME] [--state S]`` prints: the parts table, or the grasp
-    frame of ``part`` at ``state`` (default 0, the canonical state).
+def grasp_to_json(part: str, state: float, T_world_grasp: FloatArray) -> dict[str, Any]:
+    """The grasp frame of a part at a state as a JSON-ready dictionary (world frame, metres)."""
+    T = np.asarray(T_world_grasp, dtype=np.float64)
+    return {
+        "part": part,
+        "state": float(state),
+        "T_world_grasp": T.tolist(),
+        "position": T[:3, 3].tolist(),
+        "approach": T[:3, 2].tolist(),
+        "handle_axis": T[:3, 0].tolist(),
+        "finger_axis": T[:3, 1].tolist(),
+    }
+
+
+def parts_to_json(rows: tuple[PartRow, ...]) -> list[dict[str, Any]]:
+    """:func:`list_parts` rows as JSON-ready dictionaries (``contact_point`` null without one)."""
+    return [
+        {
+            "name": row.name,
+            "joint_type": row.joint_type,
+            "range": list(row.state_range),
+            "range_unit": "rad" if row.joint_type == "revolute" else "m",
+            "holds": row.holds,
+            "contact_point": None if row.contact_point is None else row.contact_point.tolist(),
+            "note": row.note,
+        }
+        for row in rows
+    ]
+
+
+def query_text(twin_dir: str | Path, part: str | None = None, state: float | None = None, as_json: bool = False) -> str:
+    """What ``funrec query TWIN [--part NAME] [--state S] [--json]`` prints: the parts table, or
+    the grasp frame of ``part`` at ``state`` (default 0, the canonical state); with ``as_json``
+    the same as JSON (a list of parts, or one grasp object).
 
     Raises:
         QueryError: a state without a part, or see :func:`grasp_frame`.
     """
     if part is None:
+        rows = list_parts(twin_dir)
         if state is not None:
-            raise QueryError(f"a state ({state}) needs a part; the twin has {[r.name for r in list_parts(twin_dir)]}")
-        return format_parts(list_parts(twin_dir))
+            raise QueryError(f"a state ({state}) needs a part; the twin has {[r.name for r in rows]}")
+        return json.dumps(parts_to_json(rows), indent=1) if as_json else format_parts(rows)
     state = 0.0 if state is None else float(state)
-    return format_grasp(part, state, grasp_frame(twin_dir, part, state))
+    T_world_grasp = grasp_frame(twin_dir, part, state)
+    return json.dumps(grasp_to_json(part, state, T_world_grasp), indent=1) if as_json else format_grasp(part, state, T_world_grasp)
 
 
 __all__ = [
@@ -158,6 +195,8 @@ __all__ = [
     "format_grasp",
     "format_parts",
     "grasp_frame",
+    "grasp_to_json",
+    "parts_to_json",
     "list_parts",
     "load_affordances",
     "query_text",

@@ -371,3 +371,94 @@ def test_oracle_on_a_synth_sequence_if_available(tmp_path):
         assert not part.failed and part.axis_error_deg < EXACT_DEG and part.add_auc > 100 - EXACT_PERCENT
         assert part.miou is None or part.miou == pytest.approx(100.0)
     assert evaluation.chamfer_cm < 100 * EXACT_M and evaluation.camera_ate_cm < 100 * EXACT_M
+
+
+# --------------------------------------------------------------------------------------------
+# Affordance scores: contact_error_m per part and hand_iou per sequence
+# --------------------------------------------------------------------------------------------
+
+
+def _write_contact(twin: Path, contacts: dict[str, np.ndarray], hand_source: str = "detected") -> None:
+    """affordances.json with one held part per entry, contact point (twin world, canonical state)."""
+    from funrec.affordances import Affordances, Interaction, PartAffordance, write_affordances
+
+    parts = []
+    for name, contact in contacts.items():
+        joint_type = "revolute" if name == "door" else "prismatic"
+        frames = np.arange(2, 8)
+        parts.append(PartAffordance(name, joint_type, contact, make_transform(np.eye(3), contact), True,
+                                    (Interaction(frames, frames / 15.0, np.zeros(len(frames))),), np.zeros((0, 3)), np.zeros(0),
+                                    np.zeros(2), np.tile(contact, (2, 1))))
+    write_affordances(twin, Affordances(tuple(parts), (), hand_source, 15.0))
+
+
+def _true_handles_in(twin: Path, capture: Path) -> dict[str, np.ndarray]:
+    """The true handle centres mapped into a twin's world frame through frame 0 (canonical state)."""
+    from funrec.ground_truth import read_ground_truth
+
+    gt = read_ground_truth(capture / "gt")
+    T_twin_gt = read_camera_poses(twin / "camera_poses.txt").T_world_camera[0] @ invert_transform(gt.T_world_camera[0])
+    return {p.part.name: transform_points(T_twin_gt, p.handle_world[None])[0] for p in gt.parts}
+
+
+def test_contact_error_is_the_distance_to_the_true_handle(capture, oracle, tmp_path):
+    twin = transform_twin(oracle, tmp_path / "twin", make_transform(Rotation.from_rotvec([0.3, -0.8, 0.2]).as_matrix(), [1.0, -2.0, 0.5]))
+    handles = _true_handles_in(twin, capture)
+    offset = np.array([0.012, -0.016, 0.0])  # 2 cm
+    _write_contact(twin, {"door": handles["door"] + offset})
+    door, drawer = evaluate_twin(twin, capture / "gt").parts
+    # The oracle's states are the true ones, so both sides move together: only file round-off.
+    assert door.contact_error_m == pytest.approx(0.02, abs=EXACT_M)
+    assert drawer.contact_error_m is None  # no affordance for it
+    assert evaluation_to_json(evaluate_twin(twin, capture / "gt"))["parts"][0]["contact_error_m"] == pytest.approx(0.02, abs=EXACT_M)
+
+
+def test_contact_error_does_not_depend_on_the_canonical_state(capture, oracle, tmp_path):
+    """A twin whose canonical state is the door's state at frame 5: its contact point is the
+    true handle moved there, and still scores 0."""
+    from funrec.ground_truth import read_ground_truth
+
+    twin = _copy(oracle, tmp_path)
+    door = next(p for p in read_articulation(twin).parts if p.name == "door")
+    shift = float(door.states[5])
+    T_world_shift = joint_transform("revolute", door.axis_world, door.pivot_world, shift)
+    edit_part(twin, "door", states=door.states - shift)
+    mesh = twin / door.mesh
+    trimesh.PointCloud(transform_points(T_world_shift, np.asarray(trimesh.load(str(mesh), process=False).vertices))).export(str(mesh))
+    gt = read_ground_truth(capture / "gt")
+    assert gt.parts[0].part.name == "door"
+    handle = transform_points(T_world_shift, _true_handles_in(twin, capture)["door"][None])[0]
+    _write_contact(twin, {"door": handle})
+    evaluation = evaluate_twin(twin, capture / "gt")
+    assert evaluation.parts[0].contact_error_m == pytest.approx(0.0, abs=EXACT_M)
+    assert "contact 0.0 cm" in format_evaluation(evaluation)
+
+
+def test_malformed_affordances_are_a_warning_not_a_failure(capture, oracle, tmp_path):
+    twin = _copy(oracle, tmp_path)
+    (twin / "affordances.json").write_text('{"format": "funrec-affordances/0"}')
+    evaluation = evaluate_twin(twin, capture / "gt")
+    assert evaluation.ok and all(p.contact_error_m is None for p in evaluation.parts)
+    assert any("affordances.json" in w and "format" in w for w in evaluation.warnings)
+
+
+def test_hand_iou_scores_detected_hand_masks(capture, oracle, tmp_path):
+    gt_dir = Path(shutil.copytree(capture / "gt", tmp_path / "gt"))
+    twin = _copy(oracle, tmp_path)
+    square = np.zeros((48, 64), bool)
+    square[10:20, 10:20] = True
+    for frame in range(FRAME_COUNT):
+        write_mask(gt_dir / "masks" / "hand" / f"{frame:06d}.png", square if frame == 3 else np.zeros_like(square))
+    # Frame 3: the predicted square is shifted by 5 columns, IoU 50 / 150. Frame 8: a detection
+    # where there is no hand, IoU 0. Other frames: both empty, not scored. Missing files are empty.
+    write_mask(twin / "masks" / "hand" / f"{3:06d}.png", np.roll(square, 5, axis=1))
+    write_mask(twin / "masks" / "hand" / f"{8:06d}.png", square)
+    write_mask(twin / "masks" / "hand" / f"{9:06d}.png", np.zeros_like(square))
+    evaluation = evaluate_twin(twin, gt_dir)
+    assert evaluation.hand_iou == pytest.approx(100.0 * (50 / 150 + 0.0) / 2)  # exact pixel counts
+    assert evaluation_to_json(evaluation)["hand_iou"] == evaluation.hand_iou
+    assert "hand IoU 16.7 %" in format_evaluation(evaluation)
+    # Masks copied from the capture are no estimate: not scored.
+    _write_contact(twin, {}, hand_source="capture")
+    assert evaluate_twin(twin, gt_dir).hand_iou is None
+    assert evaluate_twin(oracle, gt_dir).hand_iou is None  # no masks/hand/ in the twin

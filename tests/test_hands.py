@@ -137,3 +137,26 @@ def test_bench_detection_iou(name: str) -> None:
     hands = detect_hands(capture, trajectory, parts, masks, HandConfig(use_capture_masks=False))
     ious, false_frames = _ious(hands, root / "gt" / "masks" / "hand")
     assert np.mean(ious) >= 0.85 and false_frames == 0
+
+
+def test_a_part_tracked_too_short_does_not_become_hand(tiny_capture: Path) -> None:
+    """The reconstruction may stop tracking a door while it still opens (its state then holds,
+    wrongly). The free space the door leaves is on one side in time only; with two-sided seeds
+    less of the door enters the hand masks."""
+    capture = load_capture(tiny_capture)
+    trajectory, (part,), masks, _ = ground_truth_inputs(tiny_capture, np.eye(4))
+    moving = np.flatnonzero(np.abs(np.diff(part.states)) > 1e-4)
+    cut = int(moving[len(moving) // 2])  # tracked until halfway through the opening
+    short = make_part(part.name, part.joint_type, part.axis_world, part.pivot_world, part.frames[:cut], part.states[:cut])
+    gt_folder = tiny_capture / "gt" / "masks" / "hand"
+
+    def false_pixels(p: ArticulatedPart, two_sided: bool) -> int:
+        hands = detect_hands(capture, trajectory, [p], masks, HandConfig(use_capture_masks=False, two_sided=two_sided))
+        return sum(int((mask & ~read_mask(gt_folder / f"{frame:06d}.png")).sum()) for frame, mask in hands)
+
+    baseline = false_pixels(part, True)  # outline errors with the true motion (measured 228 px)
+    one_sided, two_sided = false_pixels(short, False) - baseline, false_pixels(short, True) - baseline
+    # Measured 776 and 439 excess pixels: in a 24-frame video most frames lack references on one
+    # side (untested sides do not count), so only part of the door is removed here; on the
+    # 640x480 bench a reconstructed wall cabinet went from IoU 17 % to 43 %.
+    assert two_sided < 0.75 * one_sided, (one_sided, two_sided)

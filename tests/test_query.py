@@ -3,6 +3,7 @@ one prismatic drawer without."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -98,8 +99,20 @@ def test_query_text_is_the_table_or_the_grasp(twin: Path) -> None:
     assert query_text(twin) == format_parts(list_parts(twin))
     text = query_text(twin, "part_0", 0.7)
     lines = text.splitlines()
-    assert lines[0].startswith("part_0 at state 0.7: T_world_grasp") and len(lines) == 5
-    values = np.array([[float(v) for v in line.split()] for line in lines[1:]])
-    np.testing.assert_allclose(values, grasp_frame(twin, "part_0", 0.7), atol=5e-5)  # printed with 4 decimals
+    assert lines[0].startswith("part_0 at state 0.7: T_world_grasp") and len(lines) == 9
+    values = np.array([[float(v) for v in line.split()] for line in lines[1:5]])
+    T_world_grasp = grasp_frame(twin, "part_0", 0.7)
+    np.testing.assert_allclose(values, T_world_grasp, atol=5e-5)  # printed with 4 decimals
+    columns = {"position": 3, "approach": 2, "handle axis": 0, "finger axis": 1}
+    for line in lines[5:]:
+        label, numbers = line.split(":")
+        np.testing.assert_allclose([float(v) for v in numbers.split()], T_world_grasp[:3, columns[label.strip().split(" (")[0]]], atol=5e-5)
+    grasp = json.loads(query_text(twin, "part_0", 0.7, as_json=True))
+    np.testing.assert_allclose(grasp["T_world_grasp"], T_world_grasp, atol=EXACT)
+    np.testing.assert_allclose(grasp["approach"], T_world_grasp[:3, 2], atol=EXACT)
+    np.testing.assert_allclose(grasp["handle_axis"], T_world_grasp[:3, 0], atol=EXACT)
+    rows = json.loads(query_text(twin, as_json=True))
+    assert [(r["name"], r["range_unit"], r["holds"]) for r in rows] == [("part_0", "rad", 1), ("part_1", "m", 0)]
+    assert rows[1]["contact_point"] is None and "never came within" in rows[1]["note"]
     with pytest.raises(QueryError, match=r"a state \(0.5\) needs a part; the twin has \['part_0', 'part_1'\]"):
         query_text(twin, state=0.5)
