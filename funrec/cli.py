@@ -27,6 +27,8 @@ def _print_summary(summary: Any) -> None:
     timings = ", ".join(f"{k} {v:.1f} s" for k, v in summary.stage_seconds.items())
     print(f"twin written to {summary.twin_dir}")
     print(f"  {len(summary.parts)} part(s): {parts or 'nothing was opened in this capture'}")
+    fragments = ", ".join(f"{f.first}-{f.last} {f.kind}{f' ({f.part})' if f.part else ''}" for f in summary.fragments)
+    print(f"  {len(summary.fragments)} fragment(s): {fragments}")
     print(f"  {summary.frame_count} frames in {total:.1f} s ({summary.frame_count / max(total, 1e-9):.1f} frames/s): {timings}")
     if summary.untracked_frames:
         print(f"  {summary.untracked_frames} frame(s) could not be registered; their camera poses are interpolated")
@@ -194,13 +196,65 @@ def _add_render(sub: Any, selected: bool) -> None:
     p.set_defaults(handler=_cmd_render)
 
 
+def _cmd_query(args: argparse.Namespace) -> int:
+    from funrec.query import query_text
+
+    print(query_text(args.twin, args.part, args.state, as_json=args.json))
+    return 0
+
+
+def _add_query(sub: Any, selected: bool) -> None:
+    p = sub.add_parser(
+        "query",
+        usage="funrec query TWIN [--part NAME [--state S]] [--json]",
+        help="list a twin's parts with their contact points, or give a part's grasp frame at a joint state",
+        description="Without --part: every articulated part with its joint type, observed range, number of "
+        "demonstrated holds and contact point (twin world frame, canonical state). With --part: the part's grasp "
+        "frame T_world_grasp at --state (the canonical grasp moved by the joint; z approach, x along the handle, "
+        "y across it) as a 4x4 and as position, approach and handle axis. Reads articulation.json and affordances.json.",
+    )
+    p.add_argument("twin", type=Path, help="twin folder (holds articulation.json and affordances.json)")
+    p.add_argument("--part", metavar="NAME", help="part name, as in articulation.json (e.g. part_0)")
+    p.add_argument("--state", type=float, metavar="S", help="joint state from the canonical state, rad or m, within the part's range (default 0)")
+    p.add_argument("--json", action="store_true", help="print JSON instead of text")
+    p.set_defaults(handler=_cmd_query)
+
+
+def _cmd_view(args: argparse.Namespace) -> int:
+    from funrec.config import config_from_args
+    from funrec.view import ViewConfig, serve_twin
+
+    serve_twin(args.twin, args.host, args.port, config_from_args(ViewConfig, args),
+               on_ready=lambda url: print(f"viewing {args.twin} at {url} (Ctrl+C to stop)", flush=True))
+    return 0
+
+
+def _add_view(sub: Any, selected: bool) -> None:
+    p = sub.add_parser(
+        "view",
+        help="show a twin in an interactive 3D viewer in the browser (viser), a slider per joint",
+        description="Serve the twin in the browser with viser (pip install funrec[view]): the static mesh, each part "
+        "moved by a slider over its observed range, the camera path as frustums and a polyline, contact points and "
+        "grasp frames. Runs until Ctrl+C.",
+    )
+    p.add_argument("twin", type=Path, help="twin folder (holds articulation.json and meshes/)")
+    p.add_argument("--port", type=int, default=8080, help="port of the web viewer (default: 8080)")
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default: 127.0.0.1; 0.0.0.0 for other machines)")
+    if selected:
+        from funrec.config import add_config_arguments
+        from funrec.view import ViewConfig
+
+        add_config_arguments(p, ViewConfig)
+    p.set_defaults(handler=_cmd_view)
+
+
 def _add_convert(sub: Any, selected: bool) -> None:
     p = sub.add_parser(
         "convert",
         usage="funrec convert SOURCE -o CAPTURE [--format NAME] [--rgb-topic T] [--depth-topic T] [options]",
         help="convert an RGB-D recording into a capture folder",
-        description="Convert a TUM RGB-D folder, Azure Kinect .mkv, ROS 1/2 bag, RealSense .bag/.db3 or Record3D .r3d "
-        "into a capture folder (FORMATS.md section 1). It is written to a temporary folder and moved into place when "
+        description="Convert a TUM RGB-D folder, Azure Kinect .mkv, ROS 1/2 bag, RealSense .bag/.db3, Record3D .r3d or "
+        "HOI4D sequence (with its annotations as gt/) into a capture folder (FORMATS.md section 1). It is written to a temporary folder and moved into place when "
         "complete; its conversion.json lists dropped frames, timestamp gaps and the decisions taken. Plain videos "
         "are refused: FunREC needs depth.",
     )
@@ -212,6 +266,37 @@ def _add_convert(sub: Any, selected: bool) -> None:
 
         add_config_arguments(p, ConvertConfig)
     p.set_defaults(handler=_cmd_convert)
+
+
+def _cmd_batch(args: argparse.Namespace) -> int:
+    from funrec.batch import BatchConfig, run_batch
+    from funrec.config import config_from_args
+
+    with progress_bar("batch", unit="capture") as progress:
+        report = run_batch(args.dataset, args.output, config_from_args(BatchConfig, args), progress=progress)
+    print((report.out_dir / "summary.md").read_text())
+    print(f"twins in {report.out_dir / 'twins'}, table in {report.out_dir / 'summary.csv'} and summary.md")
+    return 0
+
+
+def _add_batch(sub: Any, selected: bool) -> None:
+    p = sub.add_parser(
+        "batch",
+        usage="funrec batch DATASET_DIR -o OUT [--workers N] [--ray ADDRESS] [--evaluate] [options]",
+        help="reconstruct every capture of a folder (local processes or a Ray cluster), resumable",
+        description="Reconstruct every capture folder in DATASET_DIR into OUT/twins/<capture>, each in its own "
+        "memory-limited process, over local worker processes or, with --ray, as Ray tasks. Complete twins are "
+        "skipped (rerun after an interruption to resume); a failing capture is a row of OUT/summary.csv and "
+        "OUT/summary.md, never the end of the batch.",
+    )
+    p.add_argument("dataset", type=Path, help="folder of capture folders")
+    p.add_argument("-o", "--output", type=Path, required=True, help="output folder")
+    if selected:
+        from funrec.batch import BatchConfig
+        from funrec.config import add_config_arguments
+
+        add_config_arguments(p, BatchConfig)
+    p.set_defaults(handler=_cmd_batch)
 
 
 def _add_synth(sub: Any, selected: bool) -> None:
@@ -316,11 +401,14 @@ _COMMANDS: dict[str, Callable[[Any, bool], None]] = {
     "demo": _add_demo,
     "export": _add_export,
     "render": _add_render,
+    "query": _add_query,
+    "view": _add_view,
     "convert": _add_convert,
     "synth": _add_synth,
     "check": _add_check,
     "eval": _add_eval,
     "bench": _add_bench,
+    "batch": _add_batch,
 }
 
 

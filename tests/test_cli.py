@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import time
@@ -24,7 +25,7 @@ def test_help_is_fast_and_lists_commands() -> None:
     # The stage modules (Open3D, scikit-learn) take seconds to import; --help must not load them.
     assert time.perf_counter() - start < 5.0
     assert result.returncode == 0
-    for command in ("reconstruct", "synth", "check", "eval", "bench", "demo"):
+    for command in ("reconstruct", "synth", "check", "eval", "bench", "demo", "query", "view"):
         assert command in result.stdout
 
 
@@ -62,3 +63,62 @@ def test_eval_of_the_oracle_twin_is_perfect(tiny_capture: Path, tmp_path: Path) 
     assert result.returncode == 0, result.stderr
     evaluation = json.loads((tmp_path / "eval.json").read_text())
     assert evaluation["parts"][0]["axis_error_deg"] < 1e-6
+
+
+def _oracle_with_contact(tiny_capture: Path, twin: Path) -> tuple[Path, str, np.ndarray]:
+    """The oracle twin of the tiny capture with an affordance exactly at the true handle."""
+    from funrec.affordances import Affordances, Interaction, PartAffordance, write_affordances
+    from funrec.baselines import write_oracle_twin
+    from funrec.geometry.transforms import invert_transform, make_transform, transform_points
+    from funrec.ground_truth import read_ground_truth
+
+    write_oracle_twin(tiny_capture, twin)
+    gt = read_ground_truth(tiny_capture / "gt")
+    (truth,) = gt.parts
+    contact = transform_points(invert_transform(gt.T_world_camera[0]), truth.handle_world[None])[0]  # oracle world: camera 0
+    frames = np.arange(truth.intervals[0][0], truth.intervals[0][1] + 1)
+    affordance = PartAffordance(truth.part.name, truth.part.joint_type, contact, make_transform(np.eye(3), contact), True,
+                                (Interaction(frames, frames / 15.0, np.zeros(len(frames))),), np.zeros((0, 3)), np.zeros(0),
+                                np.zeros(2), np.tile(contact, (2, 1)))
+    write_affordances(twin, Affordances((affordance,), (), "detected", 15.0))
+    return twin, truth.part.name, contact
+
+
+def test_query_lists_parts_and_gives_grasps(tiny_capture: Path, tmp_path: Path) -> None:
+    twin, name, contact = _oracle_with_contact(tiny_capture, tmp_path / "twin")
+    result = _funrec("query", str(twin))
+    assert result.returncode == 0, result.stderr
+    assert name in result.stdout and " ".join(f"{v:+.3f}" for v in contact) in result.stdout
+    result = _funrec("query", str(twin), "--json")
+    (row,) = json.loads(result.stdout)
+    np.testing.assert_allclose(row["contact_point"], contact, atol=1e-9)  # JSON keeps float64 digits
+    result = _funrec("query", str(twin), "--part", name, "--state", "0", "--json")
+    assert result.returncode == 0, result.stderr
+    grasp = json.loads(result.stdout)
+    np.testing.assert_allclose(grasp["position"], contact, atol=1e-9)
+    np.testing.assert_allclose(np.array(grasp["T_world_grasp"])[:3, 2], grasp["approach"], atol=0)
+    text = _funrec("query", str(twin), "--part", name).stdout
+    assert "T_world_grasp" in text and "approach (z)" in text and "handle axis (x)" in text
+    result = _funrec("query", str(twin), "--part", "part_9")
+    assert result.returncode == 2 and "no part 'part_9'" in result.stderr and name in result.stderr
+    result = _funrec("query", str(tmp_path / "nothing"))
+    assert result.returncode == 2 and "articulation.json" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_eval_scores_the_contact_point(tiny_capture: Path, tmp_path: Path) -> None:
+    twin, _, _ = _oracle_with_contact(tiny_capture, tmp_path / "twin")
+    result = _funrec("eval", str(twin), str(tiny_capture / "gt"), "--json", str(tmp_path / "eval.json"))
+    assert result.returncode == 0, result.stderr
+    assert "contact 0.0 cm" in result.stdout
+    evaluation = json.loads((tmp_path / "eval.json").read_text())
+    # Oracle poses and states: only camera_poses.txt round-off (~1 um) remains.
+    assert evaluation["parts"][0]["contact_error_m"] < 1e-5
+    assert evaluation["hand_iou"] is None  # the twin holds no detected hand masks
+
+
+def test_view_without_viser_says_how_to_install_it(tmp_path: Path) -> None:
+    (tmp_path / "block").mkdir()
+    (tmp_path / "block" / "viser.py").write_text("raise ImportError('blocked for the test')\n")
+    env = {**os.environ, "PYTHONPATH": str(tmp_path / "block")}
+    result = subprocess.run([sys.executable, "-m", "funrec", "view", str(tmp_path)], capture_output=True, text=True, env=env, timeout=120)
+    assert result.returncode == 2 and "pip install funrec[view]" in result.stderr, result.stderr

@@ -16,7 +16,7 @@ VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".m4v", ".webm", ".mpg", ".mpeg", ".wm
 """Plain video files: colour only, refused (FunREC needs depth)."""
 SUPPORTED = (
     "TUM RGB-D folder (rgb.txt + depth.txt, or ground_truth.json), Azure Kinect .mkv, ROS 1 .bag / ROS 2 bag folder, "
-    "RealSense .bag / .db3, Record3D .r3d"
+    "RealSense .bag / .db3, Record3D .r3d, HOI4D sequence folder (align_rgb/ + align_depth/)"
 )
 
 
@@ -44,10 +44,13 @@ def detect_format(source: str | Path) -> str:
 
             return "realsense" if is_realsense_bag(source) else "rosbag"
     elif source.is_dir():
+        from funrec.convert.hoi4d import is_hoi4d_sequence
         from funrec.convert.tum import is_tum_folder
 
         if is_tum_folder(source):
             return "tum"
+        if is_hoi4d_sequence(source):
+            return "hoi4d"
         if (source / "metadata.yaml").is_file():
             from funrec.convert.realsense import is_realsense_bag
 
@@ -65,6 +68,8 @@ def _converter(name: str) -> Callable[[Path, Path, ConvertConfig], ConversionRep
         from funrec.convert.rosbag import convert_rosbag as run
     elif name == "realsense":
         from funrec.convert.realsense import convert_realsense as run
+    elif name == "hoi4d":
+        from funrec.convert.hoi4d import convert_hoi4d as run
     else:
         from funrec.convert.record3d import convert_record3d as run
     return run

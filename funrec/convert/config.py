@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 from funrec.errors import FunrecError
 
-FORMAT_NAMES = ("auto", "tum", "azure_kinect", "rosbag", "realsense", "record3d")
+FORMAT_NAMES = ("auto", "tum", "azure_kinect", "rosbag", "realsense", "record3d", "hoi4d")
 """Values of :attr:`ConvertConfig.format`."""
 
 
@@ -15,8 +15,8 @@ class ConvertConfig:
     """How a recording is turned into a capture folder (FORMATS.md section 1)."""
 
     format: str = "auto"
-    """Source format: auto (from the file suffix and folder contents), tum, azure_kinect, rosbag, realsense or
-    record3d."""
+    """Source format: auto (from the file suffix and folder contents), tum, azure_kinect, rosbag, realsense,
+    record3d or hoi4d."""
     overwrite: bool = False
     """Replace an existing, non-empty output folder."""
     max_time_difference_s: float = 0.02

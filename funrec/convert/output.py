@@ -10,6 +10,7 @@ import shutil
 import tempfile
 from pathlib import Path
 from types import TracebackType
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -19,7 +20,7 @@ from funrec.capture import CaptureIntrinsics, CaptureWriter, load_capture
 from funrec.convert.config import ConvertConfig
 from funrec.convert.report import ConversionReport, DroppedFrame, find_gaps
 from funrec.errors import CaptureError, FunrecError
-from funrec.ground_truth import write_ground_truth_json
+from funrec.ground_truth import GroundTruthPart, write_ground_truth_json
 from funrec.typed import FloatArray
 
 log = logging.getLogger(__name__)
@@ -54,6 +55,8 @@ class CaptureOutput:
         self._dropped: list[DroppedFrame] = []
         self._notes: list[str] = []
         self._report: ConversionReport | None = None
+        self._gt_parts: tuple[GroundTruthPart, ...] = ()
+        self._gt_extra: dict[str, Any] = {}
 
     def __enter__(self) -> CaptureOutput:
         if self.out_dir.exists() and not self.config.overwrite:
@@ -98,6 +101,11 @@ class CaptureOutput:
         """Record a decision in the report (and the log)."""
         log.info("%s: %s", self.source.name, text)
         self._notes.append(text)
+
+    def ground_truth_parts(self, parts: tuple[GroundTruthPart, ...], extra: dict[str, Any]) -> None:
+        """True articulated parts (written-frame indices, world frame of the true camera poses) and extra
+        fields for gt/gt.json, written if every frame has a true camera pose."""
+        self._gt_parts, self._gt_extra = tuple(parts), dict(extra)
 
     def drop(self, source_index: int, timestamp_s: float | None, reason: str) -> None:
         """Record a source frame that is not written."""
@@ -191,7 +199,9 @@ class CaptureOutput:
         T_world_camera = np.stack([self._T_world_camera_true[i] for i in frames])
         write_camera_poses(tmp / "gt" / "camera_poses.txt", T_world_camera, frames)
         if len(frames) == self.frames_written:
-            write_ground_truth_json(tmp / "gt" / "gt.json", self.frames_written, (), np.eye(4), {"source": self.format_name})
+            write_ground_truth_json(
+                tmp / "gt" / "gt.json", self.frames_written, self._gt_parts, np.eye(4), {"source": self.format_name, **self._gt_extra}
+            )
         else:
             self.note(
                 f"ground-truth poses cover {len(frames)} of {self.frames_written} frames: gt/camera_poses.txt lists "
