@@ -57,11 +57,33 @@ def test_revolute_plan_and_check_pass_through_the_cli(scenes, tmp_path, capsys) 
     assert read_plan(plan_path).provenance["plan_time_s"] < 10.0
 
 
-def test_prismatic_plan_and_check_pass(robot, scenes) -> None:
+def test_prismatic_plan_and_check_pass(robot, scenes, monkeypatch) -> None:
+    """Also: the grasp attachment lets go only once the opening fingers are clear of the handle (or at the
+    end of the release segment), never while a pad still overlaps it."""
+    from funrec_robot import check
+
+    clear_at: dict[float, bool] = {}
+    attached_at: list[tuple[float, bool]] = []
+    is_clear, wrench = check._Execution._gripper_clear_of_part, check._Execution._handle_wrench
+
+    def spy_clear(self):
+        clear_at[round(self.data.time, 6)] = result = is_clear(self)
+        return result
+
+    def spy_wrench(self, attached):
+        attached_at.append((round(self.data.time, 6), attached))
+        return wrench(self, attached)
+
+    monkeypatch.setattr(check._Execution, "_gripper_clear_of_part", spy_clear)
+    monkeypatch.setattr(check._Execution, "_handle_wrench", spy_wrench)
     gt = scenes[PRISMATIC_CASE]
     plan = _plan(robot, gt)
     report = check_plan(plan, robot, gt / "scene.xml")
     assert report.passed, report.failures
+    release = plan.segment("release")
+    let_go = [t for (t0, a0), (t, a1) in zip(attached_at, attached_at[1:]) if a0 and not a1]
+    assert len(let_go) == 1 and let_go[0] >= release.t_start
+    assert clear_at.get(let_go[0]) is True or let_go[0] >= release.t_end
     assert report.grasp_engaged_time is not None and report.collisions == ()
     assert report.target_error < 0.02 and report.max_velocity_ratio <= 1.1
 

@@ -245,3 +245,47 @@ def test_falls_to_follows_gravity_on_a_drop_down_door():
     # gravity torque at most 5 * 9.81 * 0.3 = 14.7 N m; a 100 N m/rad spring about 0 wins everywhere past 0.15 rad
     held = mujoco.MjModel.from_xml_string(door.format(k=100))
     assert not falls_to(held, 0, 0.8, 1.45, 0.01)
+
+
+def test_approach_touches_nothing_not_even_the_handle(robot, revolute) -> None:
+    """Until the grasp closes, the open gripper touches no scene geom, the handle included (a swing through it
+    would push the door before the grasp): kinematic replay of the approach, every sample."""
+    gt, model, task, plan = revolute
+    indices = robot_indices(robot, model)
+    robot_geoms = set(bodies_geoms(model, indices.bodies).tolist())
+    scene = np.flatnonzero(~np.isin(model.geom_bodyid, indices.bodies))
+    floor = set(floor_geoms(model, scene).tolist())
+    data = mujoco.MjData(model)
+    approach = plan.segment("approach")
+    touched = []
+    for i in range(approach.start, approach.end + 1):
+        data.qpos[:] = model.qpos0
+        data.qpos[indices.qpos] = plan.q[i]
+        data.qpos[indices.held_qpos] = indices.held_values
+        data.qpos[indices.gripper_qpos] = plan.gripper_command[i]
+        data.qpos[model.jnt_qposadr[part_joint(model, "part_0")]] = plan.part_state[i]
+        mujoco.mj_forward(model, data)
+        touched += [
+            (float(plan.t[i]), model.geom(c.geom1).name, model.geom(c.geom2).name)
+            for c in data.contact[: data.ncon]
+            if (c.geom1 in robot_geoms) != (c.geom2 in robot_geoms) and not {c.geom1, c.geom2} & floor
+        ]
+    assert touched == []
+
+
+def test_a_bar_laid_along_the_fingers_meets_the_palm(scenes) -> None:
+    """The palm check: a vertical bar 1 cm ahead of the grasp frame, gripper pitched about the finger axis.
+    Untilted the bar runs across the fingers, clear of the palm (which starts 4 cm behind the grasp frame on
+    funrec_mm); pitched 1 rad or more it runs into the palm within the checked 15 cm either side."""
+    from funrec_robot.grasp import GraspConfig, _bar_meets_palm
+    from funrec_robot.robot_geometry import measure_robot
+
+    geometry = measure_robot(load_robot(default_robot_path()))
+    door = task_from_ground_truth(scenes[REVOLUTE_CASE], "part_0")
+    config = GraspConfig()
+    assert len(geometry.palm_corners) > 0 and geometry.palm_corners[:, 2].max() < 0.0
+    for pitch, meets in ((0.0, False), (0.3, False), (1.0, True), (np.pi / 2, True)):
+        R = rotation_about_grasp_axis(1, [pitch])[0]
+        assert _bar_meets_palm(door, geometry, 0.01, R, config) is meets, pitch
+    knob = dataclasses.replace(door, handle_axis_world=None)
+    assert not _bar_meets_palm(knob, geometry, 0.01, rotation_about_grasp_axis(1, [np.pi / 2])[0], config)
