@@ -16,6 +16,7 @@ import open3d as o3d
 from scipy.spatial.transform import Rotation, Slerp
 
 from funrec.capture import Capture
+from funrec.pose_graph import PoseGraphEdge, optimise_pose_graph
 from funrec.registration import AlignmentEdge, RegistrationConfig, fpfh_features, match_distance, register_submaps
 from funrec.submaps import SubmapConfig, build_submap, overlap_fraction
 from funrec.tracking import CameraTrajectory, Progress
@@ -95,26 +96,11 @@ def _check_fragments(fragments: Sequence[tuple[int, int]], frame_count: int) -> 
     return intervals
 
 
-def _optimise(T_world_fragment: FloatArray, edges: list[tuple[int, int, FloatArray, FloatArray, bool]],
+def _optimise(T_world_fragment: FloatArray, edges: list[PoseGraphEdge],
               config: GlobalAlignmentConfig) -> tuple[FloatArray, set[tuple[int, int]]]:
-    """Scene pose graph (Open3D). Edge (s, t, T_t_s, information, uncertain). Returns the optimised
+    """Scene pose graph. Edge (s, t, T_t_s, information, uncertain). Returns the optimised
     node poses T_world_fragment and the (s, t) of the uncertain edges that survived pruning."""
-    graph = _registration.PoseGraph()
-    for T in T_world_fragment:
-        graph.nodes.append(_registration.PoseGraphNode(T))
-    for s, t, T_t_s, information, uncertain in edges:
-        graph.edges.append(_registration.PoseGraphEdge(s, t, T_t_s, information, uncertain=uncertain))
-    option = _registration.GlobalOptimizationOption(
-        max_correspondence_distance=config.pose_graph_distance_m,
-        edge_prune_threshold=config.edge_prune_threshold, reference_node=0,
-    )
-    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
-        _registration.global_optimization(
-            graph, _registration.GlobalOptimizationLevenbergMarquardt(),
-            _registration.GlobalOptimizationConvergenceCriteria(), option,
-        )
-    kept = {(e.source_node_id, e.target_node_id) for e in graph.edges if e.uncertain}
-    return np.array([np.asarray(n.pose) for n in graph.nodes]), kept
+    return optimise_pose_graph(T_world_fragment, edges, config.pose_graph_distance_m, config.edge_prune_threshold)
 
 
 def _blend(T_corrections: FloatArray, intervals: IntArray, frame_count: int, blend_frames: int,

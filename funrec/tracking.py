@@ -35,6 +35,7 @@ from funrec.features import (
     track_klt,
 )
 from funrec.geometry.transforms import invert_transform
+from funrec.pose_graph import PoseGraphEdge, optimise_pose_graph
 from funrec.typed import BoolArray, FloatArray, IntArray, UInt8Array
 
 logger = logging.getLogger(__name__)
@@ -284,29 +285,11 @@ def _bound_store(store: list[_Keyframe], limit: int) -> None:
         store.pop(int(np.argmin(gaps.min(axis=1))))
 
 
-def _optimise(T_world_node: list[FloatArray], edges: list[tuple[int, int, FloatArray, FloatArray, bool]],
-              config: TrackingConfig) -> FloatArray:
-    """Pose graph over keyframes (Open3D). Edge (s, t, T_t_s, information, uncertain)."""
-    T_world_node_array = np.array(T_world_node)
+def _optimise(T_world_node: list[FloatArray], edges: list[PoseGraphEdge], config: TrackingConfig) -> FloatArray:
+    """Pose graph over keyframes. Edge (s, t, T_t_s, information, uncertain)."""
     if len(T_world_node) < 2 or not any(e[4] for e in edges):
-        return T_world_node_array  # a chain without loop closures is already optimal
-    import open3d as o3d
-
-    registration = o3d.pipelines.registration
-    graph = registration.PoseGraph()
-    for T in T_world_node_array:
-        graph.nodes.append(registration.PoseGraphNode(T))
-    for s, t, T_t_s, information, uncertain in edges:
-        graph.edges.append(registration.PoseGraphEdge(s, t, T_t_s, information, uncertain=uncertain))
-    option = registration.GlobalOptimizationOption(
-        max_correspondence_distance=config.pose_graph_distance_m, edge_prune_threshold=0.25, reference_node=0
-    )
-    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
-        registration.global_optimization(
-            graph, registration.GlobalOptimizationLevenbergMarquardt(),
-            registration.GlobalOptimizationConvergenceCriteria(), option,
-        )
-    return np.array([np.asarray(n.pose) for n in graph.nodes])
+        return np.array(T_world_node)  # a chain without loop closures is already optimal
+    return optimise_pose_graph(T_world_node, edges, config.pose_graph_distance_m)[0]
 
 
 def _interpolate_untracked(T_world_camera: FloatArray, tracked: BoolArray) -> FloatArray:
