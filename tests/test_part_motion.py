@@ -12,9 +12,9 @@ from test_articulation import SyntheticScene, errors, make_scene  # tests/ is on
 from funrec.articulation import PartEstimate, estimate_articulation
 from funrec.geometry.joints import joint_transforms
 from funrec.geometry.transforms import make_transform
+from funrec.joint_problem import JointProblem
 from funrec.part_motion import (
     PartMotionConfig,
-    _JointProblem,
     _measure_edges,
     _solve_joint,
     refine_part_motion,
@@ -93,7 +93,7 @@ def test_joint_problem_jacobian_matches_finite_differences() -> None:
         vis = scene.tracks.visible[part.frames][:, part.track_indices[:12]]
         edges, sigma_p = _measure_edges(p, vis, PartMotionConfig(min_correspondences=4), np.random.default_rng(0))
         f, track = np.nonzero(vis)
-        problem = _JointProblem(part, edges, (f, track, p[f, track]), sigma_p, config)
+        problem = JointProblem(part, edges, (f, track, p[f, track]), sigma_p, config.loop_regulariser, config.track_weight)
         rng = np.random.default_rng(3)
         theta = problem.initial() + rng.normal(0, 0.01, problem.x_col0 + 3 * problem.n_tracks)
         theta[problem.n_joint + len(problem.var) : problem.x_col0] = rng.uniform(0.2, 0.9, problem.n_loop)
