@@ -143,18 +143,22 @@ def fuse_tsdf(
     # all volumes. Frames where some part is untracked need that part's mesh, so they wait.
     deferred = []
     for frame in fused:
-        if any(frame not in table for table in lookup):
-            deferred.append(frame)
-            continue
+        masked = [k for k, table in enumerate(lookup) if frame in table]
+        if len(masked) < len(lookup):
+            deferred.append(frame)  # the static volume waits for the meshes of the unmasked parts
+            if not masked:
+                continue
         depth_m, rgb, hand = capture.depth_m(frame), capture.rgb(frame), _hand(capture, frame, config)
         T_camera_world = invert_transform(trajectory.T_world_camera[frame])
         exclude = hand
-        for k, masks in enumerate(part_masks):
+        for k in masked:  # parts tracked in different fragments never share a frame
             j = lookup[k][frame]
-            mask = masks.mask(j)
+            mask = part_masks[k].mask(j)
             exclude = exclude | _dilate(mask, config.exclusion_margin_px)
             keep = _erode(mask, config.part_mask_erosion_px) & ~hand
             part_volumes[k].integrate(np.where(keep, depth_m, 0.0), rgb, K, T_camera_world @ poses[k][j])
+        if len(masked) < len(lookup):
+            continue
         static_volume.integrate(np.where(exclude, 0.0, depth_m), rgb, K, T_camera_world)
         done += 1
         if progress is not None:

@@ -1,7 +1,9 @@
 """reconstruct(): the only place that knows the order of the stages.
 
-capture -> camera trajectory -> point tracks -> articulation -> part motion -> part masks
--> TSDF meshes -> twin folder (FORMATS.md section 2).
+capture -> camera trajectory -> scene change -> static/dynamic fragments -> point tracks and
+articulation per dynamic fragment -> one part per interacted part (a part opened twice merged)
+-> part motion -> part masks -> TSDF meshes -> gravity -> hands and affordances -> twin folder
+(FORMATS.md section 2, plus fragments.json).
 """
 
 from __future__ import annotations
@@ -14,17 +16,32 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 
-from funrec.articulation import ArticulationConfig, InteractionEvidence, estimate_articulation
+from funrec.affordances import AffordanceConfig, find_affordances, write_affordances
+from funrec.articulation import ArticulationConfig, InteractionEvidence, PartEstimate, estimate_articulation
 from funrec.capture import Capture, load_capture
 from funrec.export.simulation import ExportConfig, export_simulation
 from funrec.export.twin import TwinWriter
+from funrec.fragment_tracks import WindowTracks, join_windows, sub_capture, sub_trajectory, track_window
+from funrec.fragments import (
+    Fragment,
+    FragmentConfig,
+    Fragments,
+    find_fragments,
+    fragments_from_spans,
+    motion_span,
+    write_fragments,
+)
 from funrec.fusion import FusionConfig, fuse_tsdf
 from funrec.geometry.transforms import transform_points
 from funrec.gravity import GravityConfig, estimate_gravity
+from funrec.hands import TWIN_HAND_MASKS, detect_hands, write_hand_masks
+from funrec.part_merge import PartMergeConfig, canonical_part_points, merge_parts
 from funrec.part_motion import PartMotion, PartMotionConfig, refine_part_motion
-from funrec.point_tracks import PointTrackConfig, track_points
-from funrec.segmentation import SegmentationConfig, segment_parts
+from funrec.point_tracks import PointTrackConfig
+from funrec.scene_change import SceneChangeConfig, scene_change
+from funrec.segmentation import PartMasks, SegmentationConfig, segment_parts
 from funrec.tracking import TrackingConfig, track_camera
 from funrec.twin_format import TwinArticulation, make_part
 
@@ -41,9 +58,15 @@ class ReconstructConfig:
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     """Camera tracking (stage 1)."""
     point_tracks: PointTrackConfig = field(default_factory=PointTrackConfig)
-    """Sparse 3D point tracks (stage 2)."""
+    """Sparse 3D point tracks (stage 2) of each dynamic fragment with its context."""
+    scene_change: SceneChangeConfig = field(default_factory=SceneChangeConfig)
+    """Scene change unexplained by the camera (evidence of interactions)."""
+    fragments: FragmentConfig = field(default_factory=FragmentConfig)
+    """Static and dynamic fragments of the video."""
     articulation: ArticulationConfig = field(default_factory=ArticulationConfig)
-    """Articulation-aware motion clustering (stage 3)."""
+    """Articulation-aware motion clustering (stage 3), run on each dynamic fragment."""
+    part_merge: PartMergeConfig = field(default_factory=PartMergeConfig)
+    """When parts of two fragments are one part (opened twice)."""
     part_motion: PartMotionConfig = field(default_factory=PartMotionConfig)
     """Joint optimisation of part poses and articulation (stage 5)."""
     segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
@@ -54,6 +77,8 @@ class ReconstructConfig:
     """Simulation exports (twin.urdf, twin.xml, twin.usda)."""
     gravity: GravityConfig = field(default_factory=GravityConfig)
     """Gravity alignment of the twin's world frame."""
+    affordances: AffordanceConfig = field(default_factory=AffordanceConfig)
+    """Hand-contact affordances (affordances.json)."""
     align_gravity: bool = True
     """Express the twin in a gravity-aligned frame (z up, origin on the floor below camera 0);
     off: the world is camera 0's frame."""
@@ -61,9 +86,18 @@ class ReconstructConfig:
     """Use the capture's hand masks when it has them (off: behave as if it had none)."""
     use_object_masks: bool = True
     """Use the capture's interacted-object masks when it has them."""
-    max_parts: int = 1
-    """Most parts kept from one capture, best interaction score first; the single-fragment
-    pipeline reconstructs the interacted part, further clusters are usually the hand."""
+    align_fragments: bool = True
+    """When the video has more than one fragment, register the fragments' static submaps and
+    correct the camera trajectory per fragment (:func:`funrec.global_alignment.align_fragments`,
+    default settings) before the dynamic fragments are tracked; a correction is kept only where it
+    fits better than the tracker's poses (on the synthetic bench it changes none by more than
+    0.4 mm); off: the camera tracker's trajectory as it is."""
+    fragment_context_s: float = 1.5
+    """Articulation of a dynamic fragment sees its tracks this long before and after it (never
+    into another dynamic fragment), seconds: the part at rest on both sides anchors its joint."""
+    parts_per_fragment: int = 1
+    """Parts kept per dynamic fragment, best interaction score first: one interaction moves one
+    part, and further clusters of a fragment are usually the hand or drift."""
 
 
 @dataclass(frozen=True)
@@ -89,6 +123,8 @@ class ReconstructionSummary:
     """Frames in the capture."""
     parts: tuple[PartSummary, ...]
     """Parts found (empty: nothing was opened)."""
+    fragments: tuple[Fragment, ...]
+    """Static and dynamic fragments of the video, in time order (fragments.json)."""
     stage_seconds: dict[str, float]
     """Wall time of each stage, seconds."""
     untracked_frames: int
@@ -103,6 +139,107 @@ def _evidence(capture: Capture, config: ReconstructConfig) -> InteractionEvidenc
     if capture.has_hand_masks and config.use_hand_masks:
         return InteractionEvidence.from_hand_masks(lambda frame: capture.mask("hand", frame), confidence)
     return None
+
+
+def _hand_visible(capture: Capture) -> npt.NDArray[np.bool_] | None:
+    """(F,) True where the capture's hand mask is non-empty; None without hand masks."""
+    if not capture.has_hand_masks:
+        return None
+    return np.array([bool(mask is not None and mask.any()) for mask in (capture.mask("hand", i) for i in range(len(capture)))])
+
+
+def _window(fragments: Fragments, k: int, context: int) -> tuple[int, int]:
+    """Inclusive frames the articulation of dynamic fragment k sees: the fragment and ``context``
+    frames on each side, stopping short of the neighbouring dynamic fragments."""
+    dynamic = fragments.dynamic
+    first = max(dynamic[k].first - context, dynamic[k - 1].last + 1 if k > 0 else 0)
+    last = min(dynamic[k].last + context, dynamic[k + 1].first - 1 if k + 1 < len(dynamic) else fragments.frame_count - 1)
+    return first, last
+
+
+def _window_evidence(evidence: InteractionEvidence | None, window: WindowTracks) -> InteractionEvidence | None:
+    """The interaction evidence of a window's frames, indexed from the window's first frame."""
+    if evidence is None:
+        return None
+    first = window.first
+    return InteractionEvidence(lambda frame, uv: evidence.lookup(frame + first, uv), evidence.confidence[first : window.last + 1],
+                               evidence.kind)
+
+
+def _motion_scene_change(part: PartEstimate, first: int, change: npt.NDArray[np.float64]) -> float:
+    """Scene change while the part moves: the capture's per-pair scene change averaged over the
+    part's frames, weighted by its state step there. Without masks, the arm reaching in and out
+    fits a joint too; the interacted part is the one that moves while the scene changes most."""
+    steps = np.abs(np.diff(part.states))
+    total = float(steps.sum())
+    return float(steps @ change[part.frames[:-1] + first]) / total if total > 0.0 else 0.0
+
+
+def _fragment_parts(windows: list[WindowTracks], evidence: InteractionEvidence | None, config: ReconstructConfig,
+                    change: npt.NDArray[np.float64] | None = None) -> list[tuple[int, PartEstimate]]:
+    """Stage 3 on each dynamic fragment's tracks: (fragment index, part) for the best
+    ``parts_per_fragment`` parts of each; frames and track indices local to the window. Without
+    mask ``evidence``, the parts are ranked by size x scene change while they move (``change``,
+    (F,) per frame pair of the capture; :func:`_motion_scene_change`)."""
+    found = []
+    for k, window in enumerate(windows):
+        parts = list(estimate_articulation(window.tracks, _window_evidence(evidence, window), config.articulation).parts)
+        if evidence is None and change is not None:
+            parts.sort(key=lambda p: -p.size_score * _motion_scene_change(p, window.first, change))
+        found += [(k, part) for part in parts[: config.parts_per_fragment]]
+        log.info("fragment %d (window %d-%d): %s", k, window.first, window.last,
+                 ", ".join(p.joint_type for p in parts[: config.parts_per_fragment]) or "no part")
+    return found
+
+
+def _part_span(windows: list[WindowTracks], found: list[tuple[int, PartEstimate]], owner: list[int], index: int,
+               estimate: PartEstimate) -> tuple[WindowTracks, PartEstimate]:
+    """The tracks of every fragment merged part ``index`` was seen in, joined over its span, and
+    its (merged, capture-frame) estimate with frames and track indices local to that span."""
+    members = [i for i, o in enumerate(owner) if o == index]
+    window_ids = sorted({found[i][0] for i in members})
+    span, offsets = join_windows([windows[w] for w in window_ids])
+    offset = dict(zip(window_ids, offsets, strict=True))
+    tracks = np.unique(np.concatenate([offset[found[i][0]] + found[i][1].track_indices for i in members]))
+    return span, dataclasses.replace(estimate, frames=estimate.frames - span.first, track_indices=tracks)
+
+
+def _final_fragments(fragments: Fragments, windows: list[WindowTracks], found: list[int], owner: list[int],
+                     part_states: list[tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]], config: ReconstructConfig
+                     ) -> Fragments:
+    """The fragments once parts are known: each dynamic fragment in which a part was found is
+    trimmed to that part's motion inside the fragment's window where its states show it
+    (:func:`~funrec.fragments.motion_span`) and names the part; one in which no part was found is
+    static (the motion was the hand, or drift).
+
+    Args:
+        fragments: the detected fragments.
+        windows: the tracked window of each dynamic fragment.
+        found: per part found, the index of its dynamic fragment.
+        owner: per part found, the index of the merged part it belongs to.
+        part_states: per merged part, its (F_m,) capture frames and (F_m,) states.
+        config: settings.
+    """
+    spans: list[tuple[int, int, str]] = []
+    for k, merged_index in zip(found, owner, strict=True):
+        first, last = fragments.dynamic[k].first, fragments.dynamic[k].last
+        frames, states = part_states[merged_index]
+        inside = (frames >= windows[k].first) & (frames <= windows[k].last)
+        start, stop = motion_span(frames[inside], states[inside], fragments.fps, config.fragments, fragments.evidence,
+                                  config.scene_change.lag_frames)
+        first, last = max(first, start if start is not None else first), min(last, stop if stop is not None else last)
+        if first <= last:
+            spans.append((first, last, f"part_{merged_index}"))
+    spans.sort()  # detected fragments are disjoint, and trimming only shrinks them
+    tiles = fragments_from_spans([(a, b) for a, b, _ in spans], fragments.frame_count, [name for _, _, name in spans])
+    return dataclasses.replace(fragments, fragments=tiles)
+
+
+def _rename_parts(fragments: Fragments, names: dict[str, str]) -> Fragments:
+    """The fragments with their part names mapped by ``names``; a part not in it was dropped (its
+    fragment stays dynamic and names no part)."""
+    renamed = tuple(dataclasses.replace(f, part=names.get(f.part)) if f.part is not None else f for f in fragments.fragments)
+    return dataclasses.replace(fragments, fragments=renamed)
 
 
 def reconstruct(
@@ -145,31 +282,42 @@ def reconstruct(
 
     with TwinWriter(out_dir, overwrite=overwrite) as writer:
         trajectory = timed("camera", track_camera, capture, config.tracking, progress=stage_progress("camera"))
-        tracks = timed("tracks", track_points, capture, trajectory, config.point_tracks, progress=stage_progress("tracks"))
-        estimate = timed("articulation", estimate_articulation, tracks, _evidence(capture, config), config.articulation)
-        motions: list[PartMotion] = [
-            timed("part motion", refine_part_motion, tracks, part, config.part_motion)
-            for part in estimate.parts[: config.max_parts]
+        change = timed("scene change", scene_change, capture, trajectory.T_world_camera, config.scene_change,
+                       progress=stage_progress("scene change"))
+        fragments = find_fragments(change, capture.intrinsics.fps, config.scene_change.lag_frames, _hand_visible(capture),
+                                   config.fragments)
+        if config.align_fragments and len(fragments.fragments) > 1:
+            from funrec.global_alignment import align_fragments  # optional stage: imported only when on
+
+            intervals = [(f.first, f.last) for f in fragments.fragments]
+            alignment = timed("alignment", align_fragments, capture, trajectory, intervals, progress=stage_progress("alignment"))
+            trajectory = alignment.trajectory
+        context = int(round(config.fragment_context_s * capture.intrinsics.fps))
+        windows = [
+            timed("tracks", track_window, capture, trajectory, *_window(fragments, k, context), config.point_tracks,
+                  progress=stage_progress(f"tracks fragment {k}"))
+            for k in range(len(fragments.dynamic))
         ]
-        all_masks = []
-        for k, (part, motion) in enumerate(zip(estimate.parts, motions)):
-            moving = np.zeros(tracks.num_tracks, dtype=bool)
-            moving[part.track_indices] = True
-            masks = timed(
-                "masks",
-                segment_parts,
-                capture,
-                trajectory,
-                tracks,
-                moving,
-                motion.frames,
-                motion.T_world_part,
-                config.segmentation,
-                progress=stage_progress(f"masks part_{k}"),
-            )
-            for frame, png in zip(masks.frames, masks.png):
-                writer.path(f"masks/part_{k}/{int(frame):06d}.png").write_bytes(png)
-            all_masks.append(masks)
+        found = timed("articulation", _fragment_parts, windows, _evidence(capture, config), config, change)
+        in_capture = [dataclasses.replace(part, frames=part.frames + windows[k].first) for k, part in found]
+        points = [canonical_part_points(part, windows[k].tracks) for k, part in found]
+        estimates, owner = timed("part merge", merge_parts, in_capture, points, config.part_merge)
+        motions: list[PartMotion] = []
+        all_masks: list[PartMasks] = []
+        for k, estimate in enumerate(estimates):
+            # each part on the frames of its fragments' tracks: frames local to that span
+            span, local = _part_span(windows, found, owner, k, estimate)
+            span_capture, span_trajectory = sub_capture(capture, span.first, span.last), sub_trajectory(trajectory, span.first, span.last)
+            motion = timed("part motion", refine_part_motion, span.tracks, local, config.part_motion,
+                           capture=span_capture, trajectory=span_trajectory)
+            moving = np.zeros(span.tracks.num_tracks, dtype=bool)
+            moving[local.track_indices] = True
+            masks = timed("masks", segment_parts, span_capture, span_trajectory, span.tracks, moving, motion.frames,
+                          motion.T_world_part, config.segmentation, progress=stage_progress(f"masks part_{k}"))
+            motions.append(dataclasses.replace(motion, frames=motion.frames + span.first, edge_frames=motion.edge_frames + span.first))
+            all_masks.append(dataclasses.replace(masks, frames=masks.frames + span.first, keyframes=masks.keyframes + span.first))
+        fragments = _final_fragments(fragments, windows, [k for k, _ in found], owner,
+                                     [(m.frames, m.states) for m in motions], config)
         meshes = timed(
             "fusion",
             fuse_tsdf,
@@ -185,9 +333,18 @@ def reconstruct(
             alignment = timed("gravity", estimate_gravity, meshes.static.vertices, trajectory.T_world_camera, config.gravity)
             T_twin_world = alignment.T_aligned_world
         meshes.static.copy().apply_transform(T_twin_world).export(writer.path("meshes/static.ply"))
-        parts = []
-        for k, (motion, mesh) in enumerate(zip(motions, meshes.parts)):
-            mesh.copy().apply_transform(T_twin_world).export(writer.path(f"meshes/part_{k}.ply"))
+        # A part whose masks fused into no surface cannot be scored or simulated: dropped.
+        kept = [k for k, mesh in enumerate(meshes.parts) if k not in meshes.empty_parts and len(mesh.faces) > 0]
+        if len(kept) < len(motions):
+            log.warning("%d of %d parts have no mesh and are dropped", len(motions) - len(kept), len(motions))
+        fragments = _rename_parts(fragments, {f"part_{old}": f"part_{new}" for new, old in enumerate(kept)})
+        motions, all_masks = [motions[k] for k in kept], [all_masks[k] for k in kept]
+        parts, surfaces = [], []
+        for k, (motion, mesh, masks) in enumerate(zip(motions, [meshes.parts[k] for k in kept], all_masks, strict=True)):
+            for frame, png in zip(masks.frames, masks.png, strict=True):
+                writer.path(f"masks/part_{k}/{int(frame):06d}.png").write_bytes(png)
+            surfaces.append(mesh.copy().apply_transform(T_twin_world))
+            surfaces[-1].export(writer.path(f"meshes/part_{k}.ply"))
             pivot_twin = None if motion.pivot_world is None else transform_points(T_twin_world, motion.pivot_world[None])[0]
             parts.append(
                 make_part(
@@ -202,7 +359,16 @@ def reconstruct(
                     masks=f"masks/part_{k}",
                 )
             )
-        writer.write_camera_poses(T_twin_world @ trajectory.T_world_camera)
+        trajectory_twin = dataclasses.replace(trajectory, T_world_camera=T_twin_world @ trajectory.T_world_camera)
+        hands = timed("hands", detect_hands, capture, trajectory_twin, parts, all_masks, config.affordances.hands,
+                      progress=stage_progress("hands"))
+        if hands.source == "detected":
+            write_hand_masks(writer.path(TWIN_HAND_MASKS), hands)
+        affordances = timed("affordances", find_affordances, capture, trajectory_twin, parts, surfaces, all_masks, hands,
+                            config.affordances, progress=stage_progress("affordances"))
+        write_affordances(writer.path("affordances.json"), affordances)
+        write_fragments(writer.path("fragments.json"), fragments)
+        writer.write_camera_poses(trajectory_twin.T_world_camera)
         writer.write_articulation(TwinArticulation(frame_count=len(capture), parts=tuple(parts)))
         timed("export", export_simulation, writer.root, config.export)
     summaries = tuple(
@@ -212,6 +378,7 @@ def reconstruct(
         twin_dir=Path(out_dir),
         frame_count=len(capture),
         parts=summaries,
+        fragments=fragments.fragments,
         stage_seconds=seconds,
         untracked_frames=int((~trajectory.tracked).sum()),
     )
