@@ -1,7 +1,9 @@
-"""Plan and check every articulated part of a folder of synthetic captures (their ground-truth scenes)."""
+"""Plan and check every articulated part of a folder of synthetic captures: on their ground-truth scenes,
+or on reconstructed twins of them with each plan checked in the ground-truth scene."""
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
@@ -12,13 +14,15 @@ import numpy as np
 
 from funrec.errors import FunrecError
 from funrec.ground_truth import read_ground_truth
-from funrec_robot.check import CheckConfig, check_plan
+from funrec_robot.check import CheckConfig, T_scene_plan_from_gt, check_plan
 from funrec_robot.plan import PlanConfig, plan_interaction
 from funrec_robot.plan_file import write_plan
 from funrec_robot.retime import retime_path
 from funrec_robot.robot import load_robot
 from funrec_robot.sim_model import build_mujoco_model
-from funrec_robot.task_sources import task_from_ground_truth
+from funrec_robot.task_sources import task_from_ground_truth, task_from_twin
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -62,8 +66,15 @@ def bench_suite(
     check_config: CheckConfig | None = None,
     plans_dir: str | Path | None = None,
     progress: Callable[[BenchRow], None] | None = None,
+    twins: str | Path | None = None,
 ) -> tuple[BenchRow, ...]:
     """Plan and check each part of each capture under ``suite`` that has ground truth.
+
+    With ``twins``, plans are made on the reconstructed twin ``twins/<case>`` (its twin.xml, articulation.json
+    and affordances.json) and checked in the capture's ground-truth scene, mapped through camera 0
+    (FORMATS.md section 4). Each true part gets one row: the twin part whose contact point is nearest its
+    handle is planned; a true part no twin part maps to is a failure row ("not in the twin"), as is a case
+    without a twin.
 
     Args:
         suite: folder of capture folders (each with gt/gt.json and gt/scene.xml).
@@ -72,6 +83,7 @@ def bench_suite(
         only: capture names to restrict to (empty: all).
         plans_dir: write each plan as ``<case>_<part>.json`` here.
         progress: called with each row as it is done.
+        twins: folder of twin folders named as the captures (e.g. ``bench_report/twins/funrec``).
     """
     plan_config = PlanConfig() if plan_config is None else plan_config
     check_config = CheckConfig() if check_config is None else check_config
@@ -85,29 +97,82 @@ def bench_suite(
         if only and case not in only:
             continue
         gt = read_ground_truth(gt_json.parent)
-        for gt_part in gt.parts:
-            name = gt_part.part.name
-            clock, cpu = time.perf_counter(), time.process_time()
-            try:
-                model = build_mujoco_model(robot, gt.scene_xml)
-                task = task_from_ground_truth(gt.root, name, model)
-                plan = plan_interaction(robot, gt.scene_xml, task, target, config=plan_config, model=model)
-            except FunrecError as exc:
-                row = BenchRow(case, name, gt_part.part.joint_type, False, False, str(exc), time.perf_counter() - clock,
-                               time.process_time() - cpu, np.nan, 0, np.nan, 0, 0.0)
-            else:
-                plan_time, plan_cpu = time.perf_counter() - clock, time.process_time() - cpu
-                if plans_dir is not None:
-                    write_plan(Path(plans_dir) / f"{case}_{name}.json", plan)
-                report = check_plan(plan, robot, gt.scene_xml, config=check_config)
-                failure = "; ".join(f"{f.criterion} at {f.time:.2f} s: {f.detail}" for f in report.failures)
-                row = BenchRow(case, name, plan.joint_type, True, report.passed, failure, plan_time, plan_cpu,
-                               report.peak_handle_force, len(report.collisions), report.target_error,
-                               len(plan.base_poses), plan.duration)
+        case_rows = (_ground_truth_rows if twins is None else _twin_rows)(
+            case, gt, robot, target, plan_config, check_config, plans_dir, None if twins is None else Path(twins) / case)
+        for row in case_rows:
             rows.append(row)
             if progress is not None:
                 progress(row)
     return tuple(rows)
+
+
+def _not_planned(case: str, part: str, joint_type: str, why: str, clock: float, cpu: float) -> BenchRow:
+    return BenchRow(case, part, joint_type, False, False, why, time.perf_counter() - clock, time.process_time() - cpu,
+                    np.nan, 0, np.nan, 0, 0.0)
+
+
+def _checked(case: str, part: str, plan: Any, report: Any, clock: float, cpu: float) -> BenchRow:
+    failure = "; ".join(f"{f.criterion} at {f.time:.2f} s: {f.detail}" for f in report.failures)
+    return BenchRow(case, part, plan.joint_type, True, report.passed, failure, clock, cpu, report.peak_handle_force,
+                    len(report.collisions), report.target_error, len(plan.base_poses), plan.duration)
+
+
+def _ground_truth_rows(case, gt, robot, target, plan_config, check_config, plans_dir, _twin):  # noqa: ANN001, ANN202
+    """One row per true part, planned and checked in the ground-truth scene."""
+    for gt_part in gt.parts:
+        name = gt_part.part.name
+        clock, cpu = time.perf_counter(), time.process_time()
+        try:
+            model = build_mujoco_model(robot, gt.scene_xml)
+            task = task_from_ground_truth(gt.root, name, model)
+            plan = plan_interaction(robot, gt.scene_xml, task, target, config=plan_config, model=model)
+        except FunrecError as exc:
+            yield _not_planned(case, name, gt_part.part.joint_type, str(exc), clock, cpu)
+            continue
+        plan_time, plan_cpu = time.perf_counter() - clock, time.process_time() - cpu
+        if plans_dir is not None:
+            write_plan(Path(plans_dir) / f"{case}_{name}.json", plan)
+        report = check_plan(plan, robot, gt.scene_xml, config=check_config)
+        yield _checked(case, name, plan, report, plan_time, plan_cpu)
+
+
+def _twin_rows(case, gt, robot, target, plan_config, check_config, plans_dir, twin):  # noqa: ANN001, ANN202
+    """One row per true part: the nearest twin part planned on the twin and checked in the true scene."""
+    from funrec.twin_format import read_articulation
+    from funrec_robot.replay import nearest_gt_joint
+
+    true_types = {p.part.name: p.part.joint_type for p in gt.parts}
+    done: set[str] = set()
+    clock, cpu = time.perf_counter(), time.process_time()
+    try:
+        twin_parts = [p.name for p in read_articulation(twin).parts]
+        twin_xml = twin / "twin.xml"
+        model = build_mujoco_model(robot, twin_xml) if twin_parts else None
+    except (FunrecError, OSError) as exc:
+        twin_parts, why = [], f"no usable twin: {exc}"
+    else:
+        why = "not in the twin"
+    for name in twin_parts:
+        clock, cpu = time.perf_counter(), time.process_time()
+        try:
+            task = task_from_twin(twin, name)
+            plan = plan_interaction(robot, twin_xml, task, target, config=plan_config, model=model)
+            T_scene_plan = T_scene_plan_from_gt(plan, gt.root)
+            joint = nearest_gt_joint(gt.root, T_scene_plan, task.p_world_contact)
+        except FunrecError as exc:
+            log.info("%s %s: %s", case, name, exc)
+            continue  # judged below as its true part's failure, if no other twin part succeeds
+        if joint in done:
+            continue
+        plan_time, plan_cpu = time.perf_counter() - clock, time.process_time() - cpu
+        if plans_dir is not None:
+            write_plan(Path(plans_dir) / f"{case}_{name}.json", plan)
+        report = check_plan(plan, robot, gt.scene_xml, joint, T_scene_plan, check_config)
+        done.add(joint)
+        yield _checked(case, joint, plan, report, plan_time, plan_cpu)
+    for name, joint_type in true_types.items():
+        if name not in done:
+            yield _not_planned(case, name, joint_type, why, clock, cpu)
 
 
 def summarize(rows: Sequence[BenchRow]) -> dict[str, Any]:

@@ -142,7 +142,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         status = "PASS" if row.passed else ("FAIL" if row.planned else "NO PLAN")
         print(f"{row.case:24s} {row.part:8s} {status:7s} plan {row.plan_time:5.2f} s  force {row.peak_handle_force:5.1f} N  {row.failure[:110]}")
 
-    rows = bench_suite(args.suite, resolve_robot(args.robot), args.to, args.only or (), plans_dir=args.plans, progress=show)
+    rows = bench_suite(args.suite, resolve_robot(args.robot), args.to, args.only or (), plans_dir=args.plans, progress=show,
+                       twins=args.twins)
     summary = summarize(rows)
     if args.output:
         Path(args.output).write_text(json.dumps(summary, indent=1) + "\n")
@@ -263,6 +264,8 @@ def _add_bench(sub: Any) -> None:
     p.add_argument("--to", default="open", help="target of every plan (default: open)")
     p.add_argument("--only", nargs="*", help="capture names to restrict to")
     p.add_argument("--plans", type=Path, help="folder to write the plans to")
+    p.add_argument("--twins", type=Path, help="plan on the reconstructed twins TWINS/<capture> (e.g. bench_report/twins/funrec) "
+                   "and check each plan in the capture's ground-truth scene")
     p.add_argument("-o", "--output", type=Path, help="write the summary and rows as JSON")
     p.set_defaults(handler=_cmd_bench)
 

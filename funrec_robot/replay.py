@@ -91,7 +91,7 @@ def demonstrated_interactions(twin_dir: str | Path) -> tuple[DemoInteraction, ..
     return tuple(sorted(holds, key=lambda h: (h.t_start, h.part)))
 
 
-def _gt_joint(gt_dir: Path, T_scene_twin: np.ndarray, p_twin_contact: np.ndarray) -> str:
+def nearest_gt_joint(gt_dir: Path, T_scene_twin: np.ndarray, p_twin_contact: np.ndarray) -> str:
     """The ground-truth part whose handle is nearest the twin's contact point (both in the scene's frame)."""
     from funrec.ground_truth import read_ground_truth
 
@@ -167,7 +167,7 @@ def replay_twin(
                 if gt_dir is not None:
                     T_scene_plan = T_scene_plan_from_gt(plan, gt_dir)
                     scene_xml = Path(gt_dir) / "scene.xml"
-                    joint = _gt_joint(Path(gt_dir), T_scene_plan, task.p_world_contact)
+                    joint = nearest_gt_joint(Path(gt_dir), T_scene_plan, task.p_world_contact)
                 clip = Path(scratch) / f"{stem}.mp4" if video else None
                 report = check_plan(plan, robot, scene_xml, joint, T_scene_plan, check_config, clip)
             except FunrecError as exc:
