@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
@@ -44,26 +45,42 @@ def run_command(parser: argparse.ArgumentParser, argv: list[str] | None) -> int:
 
 @contextmanager
 def stage_bars(unit: str = "frame") -> Iterator[Callable[[str, int, int], None]]:
-    """Yield ``progress(stage, done, total)`` that draws one tqdm bar per stage on stderr."""
+    """Yield ``progress(stage, done, total)`` that draws one tqdm bar per stage on stderr.
+
+    When stderr is not a terminal (a log file, CI), bars would write every redraw as a line;
+    instead each stage prints one line when it ends: ``stage: done/total unit in s``.
+    """
     from tqdm import tqdm
 
+    interactive = sys.stderr.isatty()
     bars: dict[str, Any] = {}
+    started: dict[str, float] = {}
+
+    def close(stage: str) -> None:
+        bar = bars[stage]
+        if not interactive:
+            print(f"{stage.strip():>14}: {bar.n}/{bar.total} {unit}s in {time.perf_counter() - started[stage]:.1f} s", file=sys.stderr)
+        bar.close()
 
     def update(stage: str, done: int, total: int) -> None:
         bar = bars.get(stage)
         if bar is None:
-            for other in bars.values():
-                other.close()
-            bar = bars[stage] = tqdm(total=total, desc=f"{stage:>14}", unit=unit, dynamic_ncols=True, file=sys.stderr)
+            for other in list(bars):
+                close(other)
+                del bars[other]
+            started[stage] = time.perf_counter()
+            bar = bars[stage] = tqdm(total=total, desc=f"{stage:>14}", unit=unit, dynamic_ncols=True, file=sys.stderr,
+                                     disable=not interactive)
         bar.total = total
         bar.n = done
-        bar.refresh()
+        if interactive:
+            bar.refresh()
 
     try:
         yield update
     finally:
-        for bar in bars.values():
-            bar.close()
+        for stage in list(bars):
+            close(stage)
 
 
 @contextmanager
