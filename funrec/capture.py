@@ -7,8 +7,11 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Iterator
-from dataclasses import dataclass, fields
+import os
+import threading
+from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import cv2
@@ -114,6 +117,79 @@ def _check_header(path: Path, frame: int, size: tuple[int, int], modes: tuple[st
         )
 
 
+PREFETCH_FRAMES = 3
+"""Frames decoded ahead of a stage that reads a capture in order (see :class:`_Prefetcher`)."""
+_PREFETCH_MAX_STEP = 8
+"""Largest frame step a sequential read may have for prefetching to follow it."""
+_executor: ThreadPoolExecutor | None = None
+_executor_lock = threading.Lock()
+
+
+def _reset_executor() -> None:
+    global _executor, _executor_lock
+    _executor, _executor_lock = None, threading.Lock()
+
+
+os.register_at_fork(after_in_child=_reset_executor)
+
+
+def _prefetch_executor() -> ThreadPoolExecutor:
+    """One background decoding thread for the process (created on first use, and anew in a
+    forked child, which does not inherit the parent's thread)."""
+    global _executor
+    with _executor_lock:
+        if _executor is None:
+            _executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="funrec-capture-prefetch")
+        return _executor
+
+
+class _Prefetcher:
+    """Decodes the next frames of an in-order read in a background thread.
+
+    Every stage streams the capture and decodes each PNG itself (about 10 ms per frame at
+    640x480); cv2 and numpy release the GIL while decoding and converting, so the decoding of
+    frames i+1.. overlaps the stage's work on frame i on a second core. Prefetching starts only
+    once two consecutive reads of one kind (rgb, grey, depth, a mask) have the same step, so random
+    access decodes nothing extra (not even after a fork: a child starts afresh). A decoded frame is handed out once and forgotten: at most
+    PREFETCH_FRAMES frames per kind are held, whatever the capture's length.
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._pending: dict[tuple[str, int], Future] = {}
+        self._last: dict[str, tuple[int, int]] = {}
+        self._pid = os.getpid()
+
+    def __reduce__(self) -> tuple[type, tuple]:
+        return (_Prefetcher, ())  # a copy (pickled, e.g. for a worker process) starts empty
+
+    def get(self, kind: str, frame: int, count: int, read: Callable[[int], object]) -> object:
+        """``read(frame)``, decoded ahead of time if the reads of ``kind`` are sequential."""
+        with self._lock:
+            if self._pid != os.getpid():  # a forked child: the parent's decoding thread is not here
+                self._pending, self._last, self._pid = {}, {}, os.getpid()
+            future = self._pending.pop((kind, frame), None)
+            last, last_step = self._last.get(kind, (None, 0))
+            step = 0 if last is None else frame - last
+            if step != 0 or last is None:  # the same frame again keeps the read pattern
+                self._last[kind] = (frame, step)
+                self._schedule(kind, frame, step if step == last_step else 0, count, read)
+        return read(frame) if future is None else future.result()
+
+    def _schedule(self, kind: str, frame: int, step: int, count: int, read: Callable[[int], object]) -> None:
+        """Decode frames frame + step, frame + 2 step, .. of ``kind`` ahead; drop other pending ones."""
+        wanted = set()
+        if 0 < step <= _PREFETCH_MAX_STEP:
+            wanted = {ahead for j in range(1, PREFETCH_FRAMES + 1) if (ahead := frame + j * step) < count}
+        for key in [key for key in self._pending if key[0] == kind and key[1] not in wanted]:
+            self._pending.pop(key).cancel()
+        if wanted:
+            executor = _prefetch_executor()
+            for ahead in sorted(wanted):
+                if (kind, ahead) not in self._pending:
+                    self._pending[(kind, ahead)] = executor.submit(read, ahead)
+
+
 _DEPTH_MODES = ("I;16", "I;16B", "I;16L", "I")
 _RGB_MODES = ("RGB", "RGBA", "L", "P")
 _MASK_MODES = ("L", "1", "P", "RGB", "RGBA")
@@ -137,6 +213,7 @@ class Capture:
     """Optional masks per kind ("hand", "object"): (F,) path or None where a frame has none."""
     T_world_camera_known: FloatArray | None
     """(F, 4, 4) known camera-to-world poses from the capture's camera_poses.txt, or None."""
+    _prefetcher: _Prefetcher = field(default_factory=_Prefetcher, init=False, repr=False, compare=False)
 
     def __len__(self) -> int:
         return len(self.stems)
@@ -160,29 +237,55 @@ class Capture:
 
     def rgb(self, frame: int) -> UInt8Array:
         """(H, W, 3) uint8 RGB colour image of frame ``frame``."""
-        path = self.rgb_paths[frame]
-        image = self._decode(path, frame)
-        if image.dtype != np.uint8:
-            raise CaptureError(path, f"colour image is {image.dtype}, expected 8-bit", frame)
-        if image.ndim == 2:
-            return np.repeat(image[:, :, None], 3, axis=2)
-        return cv2.cvtColor(image, cv2.COLOR_BGRA2RGB if image.shape[2] == 4 else cv2.COLOR_BGR2RGB)
+        return self._prefetcher.get("rgb", frame, len(self), self._read_rgb)  # type: ignore[return-value]
+
+    def gray(self, frame: int) -> UInt8Array:
+        """(H, W) uint8 grey image of frame ``frame`` (the same as converting :meth:`rgb` with
+        ``cv2.COLOR_RGB2GRAY``, made straight from the decoded image)."""
+        return self._prefetcher.get("gray", frame, len(self), self._read_gray)  # type: ignore[return-value]
 
     def depth_m(self, frame: int) -> FloatArray:
         """(H, W) float64 depth in metres of frame ``frame``; 0 marks no reading."""
-        path = self.depth_paths[frame]
-        image = self._decode(path, frame)
-        if image.dtype != np.uint16 or image.ndim != 2:
-            raise CaptureError(path, f"depth is {image.dtype} with shape {image.shape}, expected 16-bit single channel", frame)
-        return image.astype(np.float64) / self.intrinsics.depth_scale
+        return self._prefetcher.get("depth", frame, len(self), self._read_depth_m)  # type: ignore[return-value]
 
     def mask(self, kind: str, frame: int) -> BoolArray | None:
         """(H, W) bool mask of ``kind`` ("hand" or "object") at ``frame``, or None if absent."""
         paths = self.mask_paths.get(kind)
         if paths is None or paths[frame] is None:
             return None
-        path = paths[frame]
-        assert path is not None
+        return self._prefetcher.get(f"mask/{kind}", frame, len(self), lambda i: self._read_mask(kind, i))  # type: ignore[return-value]
+
+    def _read_colour(self, frame: int) -> np.ndarray:
+        """The decoded 8-bit colour file of ``frame`` as cv2 reads it (grey, BGR or BGRA)."""
+        path = self.rgb_paths[frame]
+        image = self._decode(path, frame)
+        if image.dtype != np.uint8:
+            raise CaptureError(path, f"colour image is {image.dtype}, expected 8-bit", frame)
+        return image
+
+    def _read_rgb(self, frame: int) -> UInt8Array:
+        image = self._read_colour(frame)
+        if image.ndim == 2:
+            return np.repeat(image[:, :, None], 3, axis=2)
+        return cv2.cvtColor(image, cv2.COLOR_BGRA2RGB if image.shape[2] == 4 else cv2.COLOR_BGR2RGB)
+
+    def _read_gray(self, frame: int) -> UInt8Array:
+        image = self._read_colour(frame)
+        if image.ndim == 2:
+            return image
+        return cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY if image.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
+
+    def _read_depth_m(self, frame: int) -> FloatArray:
+        path = self.depth_paths[frame]
+        image = self._decode(path, frame)
+        if image.dtype != np.uint16 or image.ndim != 2:
+            raise CaptureError(path, f"depth is {image.dtype} with shape {image.shape}, expected 16-bit single channel", frame)
+        return image.astype(np.float64) / self.intrinsics.depth_scale
+
+    def _read_mask(self, kind: str, frame: int) -> BoolArray | None:
+        path = self.mask_paths[kind][frame]
+        if path is None:
+            return None
         image = self._decode(path, frame)
         return (image if image.ndim == 2 else image.max(axis=2)) > 0
 

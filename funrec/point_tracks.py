@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from funrec.capture import Capture
-from funrec.features import depth_edges, detect_corners, lift, mask_at, sample_depth, to_gray, track_klt
+from funrec.features import depth_edges, detect_corners, lift, mask_at, sample_depth, track_klt
 from funrec.geometry.transforms import transform_points
 from funrec.tracking import CameraTrajectory
 from funrec.typed import BoolArray, FloatArray, UInt8Array
@@ -240,7 +240,7 @@ def track_points(
     log: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
     previous_gray: UInt8Array | None = None
     for frame in range(F):
-        gray = to_gray(capture.rgb(frame))
+        gray = capture.gray(frame)
         depth_m = capture.depth_m(frame)
         depth_m = np.where((depth_m >= config.min_depth_m) & (depth_m <= config.max_depth_m), depth_m, 0.0)
         hand_free = _hand_free(capture, frame, config)

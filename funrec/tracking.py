@@ -31,7 +31,6 @@ from funrec.features import (
     refine_rigid,
     rigid_ransac,
     sample_depth,
-    to_gray,
     track_klt,
 )
 from funrec.geometry.transforms import invert_transform
@@ -171,7 +170,7 @@ class _FrameInput:
 
 
 def _read_frame(capture: Capture, frame: int, config: TrackingConfig) -> _FrameInput:
-    gray = to_gray(capture.rgb(frame))
+    gray = capture.gray(frame)
     depth = capture.depth_m(frame)
     depth = np.where((depth >= config.min_depth_m) & (depth <= config.max_depth_m), depth, 0.0)
     hand_free = np.ones(depth.shape, dtype=bool)

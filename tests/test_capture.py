@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import time
 from pathlib import Path
 
 import cv2
@@ -146,3 +147,53 @@ def test_known_camera_poses_must_cover_every_frame(capture_dir: Path) -> None:
     (capture_dir / "camera_poses.txt").write_text("0 0 0 0 0 0 0 1\n")
     with pytest.raises(CaptureError, match="expected one pose per frame 0..2"):
         load_capture(capture_dir)
+
+
+def test_prefetched_frames_equal_direct_reads_and_stay_bounded(tmp_path: Path) -> None:
+    from funrec.capture import PREFETCH_FRAMES
+
+    capture = load_capture(_write_capture(tmp_path / "c", frames=12, hand_masks=True))
+    fresh = load_capture(tmp_path / "c")
+    # In order, then every other frame backwards-free (step 2), then random access: every read
+    # must equal a direct decode bit for bit (prefetching may not change a pixel).
+    order = list(range(12)) + list(range(0, 12, 2)) + [5, 1, 9, 3]
+    for frame in order:
+        np.testing.assert_array_equal(capture.rgb(frame), fresh._read_rgb(frame))
+        np.testing.assert_array_equal(capture.gray(frame), cv2.cvtColor(fresh._read_rgb(frame), cv2.COLOR_RGB2GRAY))
+        np.testing.assert_array_equal(capture.depth_m(frame), fresh._read_depth_m(frame))
+        np.testing.assert_array_equal(capture.mask("hand", frame), fresh._read_mask("hand", frame))
+        # At most PREFETCH_FRAMES decoded frames per kind wait at any time (memory stays bounded).
+        assert len(capture._prefetcher._pending) <= 4 * PREFETCH_FRAMES
+    # After random access nothing is decoded ahead.
+    assert not capture._prefetcher._pending
+
+
+def test_prefetched_corrupt_frame_raises_naming_it(tmp_path: Path) -> None:
+    capture = load_capture(_write_capture(tmp_path / "c", frames=6))
+    # Frame 4 is decoded ahead (reads 0, 1, 2 start prefetching); its error reaches the reader.
+    (tmp_path / "c" / "depth" / "000004.png").write_bytes(b"not a png")
+    with pytest.raises(CaptureError, match="000004.png"):
+        for frame in range(6):
+            capture.depth_m(frame)
+
+
+def test_forked_child_reads_frames_decoded_ahead_in_the_parent(tmp_path: Path) -> None:
+    import os
+
+    capture = load_capture(_write_capture(tmp_path / "c", frames=8))
+    for frame in range(3):  # the parent now has frames 3.. pending in its decoding thread
+        capture.depth_m(frame)
+    pid = os.fork()
+    if pid == 0:  # the child has no decoding thread: it must decode afresh, not wait forever
+        ok = all(np.array_equal(capture.depth_m(f), capture._read_depth_m(f)) for f in range(3, 8))
+        os._exit(0 if ok else 1)
+    for _ in range(200):  # up to 20 s: a child stuck on the parent's futures is killed, not awaited
+        done, status = os.waitpid(pid, os.WNOHANG)
+        if done:
+            break
+        time.sleep(0.1)
+    else:
+        os.kill(pid, 9)
+        os.waitpid(pid, 0)
+        pytest.fail("the forked child hung reading frames the parent had queued for decoding")
+    assert os.waitstatus_to_exitcode(status) == 0

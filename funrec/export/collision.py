@@ -47,8 +47,9 @@ class CollisionConfig:
     """CoACD concavity threshold (fraction of the mesh size); lower cuts finer and runs longer."""
     coacd_max_pieces: int = 16
     """Most convex pieces CoACD may return for one mesh."""
-    coacd_mcts_iterations: int = 50
-    """CoACD tree-search iterations (CoACD default 150, about 3x slower)."""
+    coacd_mcts_iterations: int = 25
+    """CoACD tree-search iterations (CoACD default 150). 25 instead of 50 cut
+    the CPU time 0-37 % on five bench part meshes for at most 0.8 % more hull volume."""
     coacd_preprocess_resolution: int = 30
     """Voxels along the longest side when CoACD first makes an open scan manifold (CoACD default
     50); 30 halves the run time of a TSDF door and thickens it by a few millimetres more."""

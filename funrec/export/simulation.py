@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import logging
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -178,39 +179,53 @@ def build_model(twin_dir: str | Path, config: ExportConfig = ExportConfig()) -> 
         )
     densities = dict(config.part_densities)
     T_export_world = config.export_from_world()
-    seconds = 0.0
-
-    visual = None
-    collision: tuple[trimesh.Trimesh, ...] = ()
-    if articulation.static_mesh is not None:
-        static_world = _load_mesh(twin_dir, articulation.static_mesh)
-        visual = static_world.copy()
-        visual.apply_transform(T_export_world)
-        tic = time.perf_counter()
-        collision = decompose(visual, config.collision.static_method, config.collision, articulation.static_mesh)
-        seconds += time.perf_counter() - tic
-        log.info("static: %d convex pieces (%s) in %.1f s", len(collision), config.collision.static_method, seconds)
-    base = SimLink(name="static", T_export_link=np.eye(4), visual=visual, collision=collision, mass=None)
-
-    parts, joints = [], []
-    for part in articulation.parts:
-        if part.mesh is None:
-            raise ExportError(
-                f"{twin_dir / 'articulation.json'}: part {part.name} names no mesh; a simulator link needs one"
-            )
-        mesh_world = _load_mesh(twin_dir, part.mesh)
-        T_world_part = part_link_frame(part.joint_type, part.axis_world, part.pivot_world, mesh_world.centroid)
-        visual_part = to_link_frame(mesh_world, T_world_part)
-        tic = time.perf_counter()
-        pieces = decompose(visual_part, config.collision.part_method, config.collision, part.mesh)
-        seconds += time.perf_counter() - tic
-        mass = mass_properties(visual_part, pieces, densities.get(part.name, config.density_kg_m3))
-        log.info("%s: %d convex pieces, %.3f kg from the %s", part.name, len(pieces), mass.mass_kg, mass.source)
-        T_export_part = T_export_world @ T_world_part
-        parts.append(SimLink(part.name, T_export_part, visual_part, pieces, mass))
-        joints.append(_joint(twin_dir, part, T_export_part, config))
+    tic = time.perf_counter()
+    # The parts' decompositions run in a background thread while the static scene's runs here:
+    # CoACD releases the GIL, so on two cores the part and static decompositions overlap. The
+    # static one also goes to that thread if it is CoACD too (one CoACD run at a time).
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="funrec-decompose") as pool:
+        part_inputs = []
+        for part in articulation.parts:
+            if part.mesh is None:
+                raise ExportError(
+                    f"{twin_dir / 'articulation.json'}: part {part.name} names no mesh; a simulator link needs one"
+                )
+            mesh_world = _load_mesh(twin_dir, part.mesh)
+            T_world_part = part_link_frame(part.joint_type, part.axis_world, part.pivot_world, mesh_world.centroid)
+            visual_part = to_link_frame(mesh_world, T_world_part)
+            decomposition = pool.submit(decompose, visual_part, config.collision.part_method, config.collision, part.mesh)
+            part_inputs.append((part, T_world_part, visual_part, decomposition))
+        base = _static_link(twin_dir, articulation.static_mesh, T_export_world, config, pool)
+        parts, joints = [], []
+        for part, T_world_part, visual_part, decomposition in part_inputs:
+            pieces = decomposition.result()
+            mass = mass_properties(visual_part, pieces, densities.get(part.name, config.density_kg_m3))
+            log.info("%s: %d convex pieces, %.3f kg from the %s", part.name, len(pieces), mass.mass_kg, mass.source)
+            T_export_part = T_export_world @ T_world_part
+            parts.append(SimLink(part.name, T_export_part, visual_part, pieces, mass))
+            joints.append(_joint(twin_dir, part, T_export_part, config))
+    seconds = time.perf_counter() - tic
     model = SimModel(name=config.model_name, base=base, parts=tuple(parts), joints=tuple(joints))
     return model, seconds
+
+
+def _static_link(
+    twin_dir: Path, static_mesh: str | None, T_export_world: FloatArray, config: ExportConfig, pool: ThreadPoolExecutor
+) -> SimLink:
+    """The static link: the static mesh in the export frame and its convex pieces."""
+    visual = None
+    collision: tuple[trimesh.Trimesh, ...] = ()
+    if static_mesh is not None:
+        visual = _load_mesh(twin_dir, static_mesh)
+        visual.apply_transform(T_export_world)
+        tic = time.perf_counter()
+        method = config.collision.static_method
+        if method == "coacd":
+            collision = pool.submit(decompose, visual, method, config.collision, static_mesh).result()
+        else:
+            collision = decompose(visual, method, config.collision, static_mesh)
+        log.info("static: %d convex pieces (%s) in %.1f s", len(collision), method, time.perf_counter() - tic)
+    return SimLink(name="static", T_export_link=np.eye(4), visual=visual, collision=collision, mass=None)
 
 
 def _joint(twin_dir: Path, part: ArticulatedPart, T_static_part: FloatArray, config: ExportConfig) -> SimJoint:
