@@ -39,6 +39,7 @@ from funrec.bench_report import (
 from funrec.capture import load_capture
 from funrec.errors import FunrecError
 from funrec.evaluate import EvalConfig, evaluate_twin, failed_evaluation
+from funrec.fragment_metrics import FragmentScore, score_twin_fragments
 
 LOGGER = logging.getLogger(__name__)
 
@@ -230,8 +231,21 @@ def _run_sequence(
         return failure("failed", f"evaluation crashed: {type(exc).__name__}: {exc}", frame_count, child)
     status, reason = ("ok", None) if evaluation.ok else ("failed", evaluation.failure)
     return SequenceResult(
-        capture.name, label, status, reason, frame_count, child.wall_s, child.peak_rss_mb, evaluation, twin, log_path, child.cpu_s
+        capture.name, label, status, reason, frame_count, child.wall_s, child.peak_rss_mb, evaluation, twin, log_path, child.cpu_s,
+        _fragment_score(twin, gt_dir),
     )
+
+
+def _fragment_score(twin: Path, gt_dir: Path) -> FragmentScore | None:
+    """The twin's fragments scored against the true interactions; None when it has no fragments.json
+    (baselines) or it cannot be read (logged: fragments are not part of FORMATS.md's contract)."""
+    if not (twin / "fragments.json").is_file():
+        return None
+    try:
+        return score_twin_fragments(twin, gt_dir)
+    except (FunrecError, OSError, ValueError) as exc:
+        LOGGER.warning("%s: fragments not scored: %s", twin, exc)
+        return None
 
 
 def _is_sequence(path: Path) -> bool:

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from funrec.evaluate import TwinEvaluation, evaluation_to_json
+from funrec.fragment_metrics import FragmentScore
 
 if TYPE_CHECKING:
     from funrec.bench import BenchConfig
@@ -42,6 +43,8 @@ class SequenceResult:
     """stdout and stderr of the run subprocess."""
     cpu_s: float | None = None
     """CPU time (user + system) of the run subprocess, seconds; None if unknown (timeout)."""
+    fragments: FragmentScore | None = None
+    """The twin's fragments.json scored against the true interaction intervals; None without one."""
 
     @property
     def frames_per_s(self) -> float | None:
@@ -106,6 +109,22 @@ class BenchSummary:
     frames_per_cpu_s: float | None = None
     """Total frames over total CPU time (user + system) of completed runs; unlike frames/s it
     does not depend on how busy the machine was."""
+    contact_within_3cm_pct: float | None = None
+    """Non-failed parts whose contact point is within 3 cm of the true handle, percent of all
+    non-failed parts (a part without a contact point counts as a miss)."""
+    contact_median_cm: float | None = None
+    """Median contact-point-to-handle distance over parts that have one, cm."""
+    hand_iou: float | None = None
+    """Mean IoU of detected hand masks against the true ones over sequences without given hand masks, percent."""
+    fragment_pass_pct: float | None = None
+    """Sequences whose dynamic fragments match the true interactions (none missed, none invented, every
+    boundary within 0.5 s), percent of sequences with a fragments.json."""
+    fragment_boundary_max_s: float | None = None
+    """Largest boundary error of a matched fragment over all sequences, seconds."""
+    interactions_missed: int = 0
+    """True interactions no detected fragment overlaps, all sequences."""
+    interactions_invented: int = 0
+    """Detected dynamic fragments that overlap no true interaction, all sequences."""
 
 
 @dataclass(frozen=True)
@@ -188,7 +207,23 @@ def summarize(results: tuple[SequenceResult, ...] | list[SequenceResult]) -> Ben
         frames_per_s=sum(r.frame_count for r in done) / wall if wall > 0 else None,
         peak_rss_mb=max(rss) if rss else None,
         frames_per_cpu_s=sum(r.frame_count for r in timed) / cpu if cpu > 0 else None,
+        **_twin_level(results, scored),
     )
+
+
+def _twin_level(results: tuple[SequenceResult, ...] | list[SequenceResult], scored: list) -> dict[str, Any]:
+    """The functional-twin columns of :class:`BenchSummary`: affordances and fragments."""
+    contacts = [p.contact_error_m for p in scored if p.contact_error_m is not None]
+    frags = [r.fragments for r in results if r.fragments is not None]
+    return {
+        "contact_within_3cm_pct": 100.0 * sum(c <= 0.03 for c in contacts) / len(scored) if scored else None,
+        "contact_median_cm": 100.0 * float(np.median(contacts)) if contacts else None,
+        "hand_iou": _mean([r.evaluation.hand_iou for r in results]),
+        "fragment_pass_pct": 100.0 * sum(f.passed for f in frags) / len(frags) if frags else None,
+        "fragment_boundary_max_s": max((f.max_boundary_error_s for f in frags), default=None),
+        "interactions_missed": sum(f.missed for f in frags),
+        "interactions_invented": sum(f.invented for f in frags),
+    }
 
 
 TABLE_COLUMNS = (
@@ -235,6 +270,30 @@ def _table(first: str, rows: list[tuple[str, list[str]]]) -> list[str]:
     return lines
 
 
+TWIN_COLUMNS = (
+    "Contact <= 3 cm (%)", "Contact median (cm)", "Hand IoU (%)", "Fragments pass (%)", "Max boundary error (s)",
+    "Missed / invented interactions",
+)
+"""Columns of the functional-twin table (issue 4): affordance contact points against the true
+handle, detected hand masks, and dynamic fragments against the true interaction intervals."""
+
+
+def _twin_cells(s: BenchSummary) -> list[str]:
+    return [
+        _f(s.contact_within_3cm_pct, 1),
+        _f(s.contact_median_cm, 2),
+        _f(s.hand_iou, 1),
+        _f(s.fragment_pass_pct, 1),
+        _f(s.fragment_boundary_max_s, 2),
+        f"{s.interactions_missed} / {s.interactions_invented}",
+    ]
+
+
+def _twin_table(first: str, rows: list[tuple[str, BenchSummary]]) -> list[str]:
+    lines = ["| " + " | ".join([first, *TWIN_COLUMNS]) + " |", "|" + "|".join(["---"] + [":---:"] * len(TWIN_COLUMNS)) + "|"]
+    return lines + ["| " + " | ".join([name, *_twin_cells(s)]) + " |" for name, s in rows]
+
+
 def ablation_rows(report: BenchReport) -> tuple[str, list[tuple[str, BenchSummary]]]:
     """Heading and rows of the ablation table: the main method summarised over the sequences the
     ablations ran on, then each ablation. All ablations of a bench run share their sequences."""
@@ -256,6 +315,7 @@ def format_report(report: BenchReport) -> str:
     for row in report.main.sequences:
         if row.status != "ok":
             lines.append(f"  {row.name}: {row.status}: {row.reason}")
+    lines += ["", "Functional twin:", *_twin_table("Method", [(report.main.label, s)])]
     if report.ablations:
         heading, rows = ablation_rows(report)
         lines += ["", f"Ablations ({heading}):", *_table("Ablation", [(label, _cells(s)) for label, s in rows])]
@@ -279,6 +339,10 @@ def report_to_markdown(report: BenchReport) -> str:
         "## Results",
         "",
         *_table("Method", [(report.main.label, _cells(report.main.summary))]),
+        "",
+        "## Functional twin (affordances, hand masks, fragments)",
+        "",
+        *_twin_table("Method", [(report.main.label, report.main.summary)]),
     ]
     if report.ablations:
         heading, rows = ablation_rows(report)
@@ -286,6 +350,7 @@ def report_to_markdown(report: BenchReport) -> str:
     for method in report.methods:
         lines += ["", f"## Per sequence: {method.label}", "", f"Command: `{shlex.join(method.command)}`", ""]
         lines += _table("Sequence", [(r.name, _cells(summarize([r]))) for r in method.sequences])
+        lines += ["", *_twin_table("Sequence", [(r.name, summarize([r])) for r in method.sequences])]
         failures = [r for r in method.sequences if r.status != "ok"]
         part_failures = [(r.name, p) for r in method.sequences if r.status == "ok" for p in r.evaluation.parts if p.failed]
         if failures or part_failures:
@@ -311,7 +376,10 @@ def report_to_json(report: BenchReport) -> dict[str, Any]:
     for method in report.methods:
         rows = []
         for r in method.sequences:
-            row = {f.name: getattr(r, f.name) for f in dataclasses.fields(r) if f.name != "evaluation"}
+            row = {f.name: getattr(r, f.name) for f in dataclasses.fields(r) if f.name not in ("evaluation", "fragments")}
+            row["fragments"] = None if r.fragments is None else {
+                **dataclasses.asdict(r.fragments), "max_boundary_error_s": r.fragments.max_boundary_error_s,
+                "passed": r.fragments.passed}
             row["frames_per_s"] = r.frames_per_s
             row["frames_per_cpu_s"] = r.frames_per_cpu_s
             row["evaluation"] = evaluation_to_json(r.evaluation)
@@ -334,6 +402,7 @@ def report_to_json(report: BenchReport) -> dict[str, Any]:
 __all__ = [
     "AGGREGATION_NOTE",
     "TABLE_COLUMNS",
+    "TWIN_COLUMNS",
     "BenchReport",
     "BenchSummary",
     "MethodReport",

@@ -205,3 +205,23 @@ def test_summary_averages_over_non_failed_parts_and_fails_over_all():
     assert s.frames_per_s == pytest.approx(20 / 4.0)  # the timed-out run's time is not throughput
     assert s.frames_per_cpu_s == pytest.approx(20 / 2.0)
     assert s.failed_sequences == 1 and s.peak_rss_mb == 50.0
+
+
+def test_summary_scores_contacts_over_all_scored_parts_and_fragments_per_sequence():
+    from dataclasses import replace
+
+    from funrec.fragment_metrics import score_fragments
+
+    door = PartEvaluation("d", "revolute", "p", None, 0.0, 5, 2.0, 0.1, 4.0, 80.0, 60.0, 50.0, contact_error_m=0.01)
+    far = replace(door, contact_error_m=0.05)
+    no_contact = replace(door, contact_error_m=None)
+    # 15 FPS: a fragment 6 frames late (0.4 s) passes, one 9 frames late (0.6 s) fails.
+    good = score_fragments([(16, 40)], [(10, 40)], fps=15.0)
+    late = score_fragments([(19, 40), (60, 70)], [(10, 40)], fps=15.0)
+    rows = [replace(_row([door, far]), fragments=good), replace(_row([no_contact]), fragments=late)]
+    s = summarize(rows)
+    assert s.contact_within_3cm_pct == pytest.approx(100.0 / 3)  # a scored part without a contact is a miss
+    assert s.contact_median_cm == pytest.approx(3.0)  # median of 1 and 5 cm
+    assert s.fragment_pass_pct == pytest.approx(50.0)
+    assert s.fragment_boundary_max_s == pytest.approx(0.6)
+    assert (s.interactions_missed, s.interactions_invented) == (0, 1)
