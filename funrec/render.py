@@ -12,7 +12,7 @@ import numpy as np
 from funrec.camera_poses import read_camera_poses
 from funrec.errors import FunrecError
 from funrec.offscreen import ensure_gl_backend
-from funrec.twin_format import read_articulation
+from funrec.twin_format import ArticulatedPart, read_articulation
 
 log = logging.getLogger(__name__)
 
@@ -97,19 +97,22 @@ def render_twin(twin_dir: str | Path, out_dir: str | Path, config: RenderConfig 
             body = model.jnt_bodyid[model.joint(part.name).id]
             model.geom_rgba[model.geom_bodyid == body] = config.part_rgba
         mujoco.mj_forward(model, data)
-        if articulation.parts:
-            first = articulation.parts[0]
-            body = model.jnt_bodyid[model.joint(first.name).id]
-            target = data.xipos[body].copy()
-            frame = int(first.frames[len(first.frames) // 2])
-        else:
-            target = T_world_camera[0, :3, 3] + T_world_camera[0, :3, 2] * 1.5
-            frame = 0
-        distance, camera.azimuth, camera.elevation = _view(T_world_camera[frame], target)
-        camera.lookat[:] = target
-        camera.distance = distance * config.zoom_out
+
+        def aim(part: ArticulatedPart | None) -> None:
+            """Look at the part (or ahead of camera 0) from where the person stood mid-way through it."""
+            if part is None:
+                target, frame = T_world_camera[0, :3, 3] + T_world_camera[0, :3, 2] * 1.5, 0
+            else:
+                target = data.xipos[model.jnt_bodyid[model.joint(part.name).id]].copy()
+                frame = int(part.frames[len(part.frames) // 2])
+            distance, camera.azimuth, camera.elevation = _view(T_world_camera[frame], target)
+            camera.lookat[:] = target
+            camera.distance = distance * config.zoom_out
+
+        aim(articulation.parts[0] if articulation.parts else None)
         shoot(out_dir / "overview.png")
         for part in articulation.parts:
+            aim(part)  # each part from its own viewpoint: parts of one room may be metres apart
             joint = model.joint(part.name)
             lower, upper = model.jnt_range[joint.id]
             for k, state in enumerate(np.linspace(lower, upper, config.states)):
