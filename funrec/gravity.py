@@ -25,9 +25,15 @@ class GravityConfig:
     plane_distance_m: float = 0.02
     """RANSAC inlier distance to a plane, metres: about 3 sigma of Kinect-like depth noise at
     2 m after TSDF averaging, thin enough to separate a floor from a 2 cm skirting board."""
-    max_floor_tilt_deg: float = 35.0
-    """A plane is horizontal when its normal is within this angle of the camera prior's up;
-    the prior from a head-mounted camera is off by its roll and pitch noise, rarely 20 deg."""
+    max_floor_tilt_deg: float = 60.0
+    """A plane may be the floor when its normal is within this angle of the camera prior's up.
+    The prior is good to a few degrees when the person turns (the x axes then span the horizontal
+    plane), but when they face one way it is the mean -y axis, pitched by how far down they look:
+    measured 38-46 deg on bench kitchens, so the floor test below leans on camera height too."""
+    camera_height_m: tuple[float, float] = (0.6, 2.4)
+    """The floor lies this far below the median camera centre, metres: a head-mounted or hand-held
+    camera of a standing or crouching person. It separates the floor from a counter top (about 0.5 m
+    below the head) and from walls, which the camera is not 'above'."""
     min_plane_fraction: float = 0.04
     """A horizontal plane needs at least this fraction of the thinned points to count."""
     max_planes: int = 6
@@ -67,8 +73,10 @@ def _camera_up_prior(T_world_camera: FloatArray) -> FloatArray:
     return up if up @ minus_y >= 0 else -up
 
 
-def _floor_plane(points_world: FloatArray, up_prior: FloatArray, config: GravityConfig) -> tuple[FloatArray, float, int] | None:
-    """The lowest large horizontal plane: (unit normal pointing up, offset d with n.p + d = 0, inliers)."""
+def _floor_plane(points_world: FloatArray, up_prior: FloatArray, config: GravityConfig,
+                 p_world_camera: FloatArray | None = None) -> tuple[FloatArray, float, int] | None:
+    """The lowest large plane roughly facing up with the cameras at head height above it:
+    (unit normal pointing up, offset d with n.p + d = 0, inliers)."""
     import open3d as o3d
 
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points_world))
@@ -88,7 +96,9 @@ def _floor_plane(points_world: FloatArray, up_prior: FloatArray, config: Gravity
         normal, d = normal / scale, d / scale
         if normal @ up_prior < 0:
             normal, d = -normal, -d
-        if normal @ up_prior >= cos_tilt and len(inliers) >= config.min_plane_fraction * total:
+        height = None if p_world_camera is None else float(np.median(p_world_camera @ normal + d))
+        at_head_height = height is None or config.camera_height_m[0] <= height <= config.camera_height_m[1]
+        if normal @ up_prior >= cos_tilt and at_head_height and len(inliers) >= config.min_plane_fraction * total:
             # Height of the plane along up is -d; the floor is the lowest horizontal plane.
             if best is None or -d < -best[1]:
                 best = (normal, d, len(inliers))
@@ -114,7 +124,8 @@ def estimate_gravity(
     points_world = np.asarray(points_world, dtype=np.float64).reshape(-1, 3)
     T_world_camera = np.asarray(T_world_camera, dtype=np.float64)
     up = _camera_up_prior(T_world_camera)
-    floor = _floor_plane(points_world[np.isfinite(points_world).all(axis=1)], up, config) if len(points_world) else None
+    finite = points_world[np.isfinite(points_world).all(axis=1)]
+    floor = _floor_plane(finite, up, config, T_world_camera[:, :3, 3]) if len(points_world) else None
     p_camera0 = T_world_camera[0, :3, 3]
     if floor is not None:
         up, d, inliers = floor
