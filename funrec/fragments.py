@@ -202,15 +202,22 @@ def evidence_span(evidence: FloatArray, fps: float, lag_frames: int, first: int,
     return max(0, int(runs[0][0]) - pad), min(F - 1, int(runs[-1][1]) + pad)
 
 
+def _rest_state(side: FloatArray, travel: float) -> float:
+    """Median of the states of one side of a motion (``side[-1]`` the far end from the motion)
+    within a quarter of the travel of that far end: the part at rest, not the ramp into it."""
+    return float(np.median(side[np.abs(side - side[-1]) <= 0.25 * travel]))
+
+
 def motion_span(frames: npt.ArrayLike, states: npt.ArrayLike, fps: float,
                 config: FragmentConfig = FragmentConfig(),  # noqa: B008 (frozen)
                 evidence: FloatArray | None = None, lag_frames: int = 0) -> tuple[int | None, int | None]:
     """Where a fitted part started and stopped moving, where its states show it.
 
-    The start is the frame before the first state more than ``state_change_fraction`` of the
-    travel away from the first state, minus ``padding_s``; it is known only when the part was
-    followed at rest for ``min_rest_s`` before it (else None: its tracks may have started late).
-    The end likewise, from the last state, after the motion. With the capture's scene-change
+    The start is the last frame before the motion passes half its travel whose state is within
+    ``state_change_fraction`` of the travel of the median state before that, minus ``padding_s``;
+    it is known only when the part was followed at rest for ``min_rest_s`` before it (else None:
+    its tracks may have started late).
+    The end likewise, after the motion last passes half its travel. With the capture's scene-change
     ``evidence``, a side the states do not show comes from the scene-change runs that overlap the
     frames where the part was seen moving (:func:`evidence_span`): a door's tracks are often lost
     as it swings open, before it stops.
@@ -230,14 +237,31 @@ def motion_span(frames: npt.ArrayLike, states: npt.ArrayLike, fps: float,
     travel = float(np.ptp(states)) if len(states) else 0.0
     if travel <= 0.0:
         return None, None
-    tolerance = config.state_change_fraction * travel
-    left = int(np.flatnonzero(np.abs(states - states[0]) > tolerance)[0]) - 1
-    right = int(np.flatnonzero(np.abs(states - states[-1]) > tolerance)[-1]) + 1
+    tolerance, middle = config.state_change_fraction * travel, 0.5 * (states.min() + states.max())
+    # the rest states before (after) the motion: those before it first crosses (after it last
+    # crosses) half its travel, near their rest state: a step of a few % of the travel while the
+    # hand grips the part (seen in refined states) is not the motion
+    first_past = int(np.flatnonzero((states > middle) != (states[0] > middle))[0])
+    last_before = int(np.flatnonzero((states > middle) != (states[-1] > middle))[-1])
+    before, after = states[:first_past], states[last_before + 1 :]
+    still_before = np.abs(states - _rest_state(before[::-1], travel)) <= tolerance
+    still_after = np.abs(states - _rest_state(after, travel)) <= tolerance
+    near_before, near_after = np.flatnonzero(still_before[:first_past]), np.flatnonzero(still_after[last_before + 1 :])
+    left = int(near_before[-1]) if near_before.size else first_past - 1
+    right = last_before + 1 + (int(near_after[0]) if near_after.size else 0)
     pad, rest = int(round(config.padding_s * fps)), config.min_rest_s * fps
-    first = int(frames[left]) - pad if frames[left] - frames[0] >= rest else None
-    last = int(frames[right]) + pad if frames[-1] - frames[right] >= rest else None
+    # a boundary counts only when the part stayed at rest beyond it, for at least min_rest_s and up
+    # to the end of its states (a door held open a moment, then closed, is still in its interaction)
+    at_rest_before = frames[left] - frames[0] >= rest and bool(still_before[: left + 1].all())
+    at_rest_after = frames[-1] - frames[right] >= rest and bool(still_after[right:].all())
+    first = int(frames[left]) - pad if at_rest_before else None
+    last = int(frames[right]) + pad if at_rest_after else None
+    # seen moving: from the start of the motion to the last clear state step (a door held open a
+    # moment and then closed moved again after the rest found above)
+    steps = np.flatnonzero(np.abs(np.diff(states)) > 0.25 * tolerance)
+    moved_until = max(right - 1, int(steps[-1]) + 1 if steps.size else 0)
     seen = None if evidence is None else evidence_span(evidence, fps, lag_frames, int(frames[left + 1]),
-                                                       int(frames[right - 1]), config)
+                                                       int(frames[moved_until]), config)
     if seen is not None:
         first, last = seen[0] if first is None else first, seen[1] if last is None else last
     return first, last

@@ -90,8 +90,9 @@ class ReconstructConfig:
     """When the video has more than one fragment, register the fragments' static submaps and
     correct the camera trajectory per fragment (:func:`funrec.global_alignment.align_fragments`,
     default settings) before the dynamic fragments are tracked; a correction is kept only where it
-    fits better than the tracker's poses (on the synthetic bench it changes none by more than
-    0.4 mm); off: the camera tracker's trajectory as it is."""
+    fits better than the tracker's poses (measured on multi_kitchen_00, multi_same_00 and
+    rev_cabinet_left_00 of the synthetic bench: no camera moved by more than 0.4 mm); off: the
+    camera tracker's trajectory as it is."""
     fragment_context_s: float = 1.5
     """Articulation of a dynamic fragment sees its tracks this long before and after it (never
     into another dynamic fragment), seconds: the part at rest on both sides anchors its joint."""
@@ -205,12 +206,15 @@ def _part_span(windows: list[WindowTracks], found: list[tuple[int, PartEstimate]
 
 
 def _final_fragments(fragments: Fragments, windows: list[WindowTracks], found: list[int], owner: list[int],
-                     part_states: list[tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]], config: ReconstructConfig
-                     ) -> Fragments:
+                     part_states: list[tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]], config: ReconstructConfig,
+                     arm_in_evidence: bool = True) -> Fragments:
     """The fragments once parts are known: each dynamic fragment in which a part was found is
     trimmed to that part's motion inside the fragment's window where its states show it
     (:func:`~funrec.fragments.motion_span`) and names the part; one in which no part was found is
-    static (the motion was the hand, or drift).
+    static (the motion was the hand, or drift). Trimming, and a side the states miss taken from the
+    scene change of the part's motion, happen only with ``arm_in_evidence`` (no hand masks: the
+    scene change also shows the arm reaching in and out); with hand masks the hand-gated scene
+    change already spans the interaction, which goes on while the hand holds the part still.
 
     Args:
         fragments: the detected fragments.
@@ -219,14 +223,17 @@ def _final_fragments(fragments: Fragments, windows: list[WindowTracks], found: l
         owner: per part found, the index of the merged part it belongs to.
         part_states: per merged part, its (F_m,) capture frames and (F_m,) states.
         config: settings.
+        arm_in_evidence: the fragments' scene change includes the arm (no hand masks).
     """
     spans: list[tuple[int, int, str]] = []
     for k, merged_index in zip(found, owner, strict=True):
         first, last = fragments.dynamic[k].first, fragments.dynamic[k].last
         frames, states = part_states[merged_index]
         inside = (frames >= windows[k].first) & (frames <= windows[k].last)
-        start, stop = motion_span(frames[inside], states[inside], fragments.fps, config.fragments, fragments.evidence,
-                                  config.scene_change.lag_frames)
+        start, stop = None, None
+        if arm_in_evidence:
+            start, stop = motion_span(frames[inside], states[inside], fragments.fps, config.fragments, fragments.evidence,
+                                      config.scene_change.lag_frames)
         first, last = max(first, start if start is not None else first), min(last, stop if stop is not None else last)
         if first <= last:
             spans.append((first, last, f"part_{merged_index}"))
@@ -317,7 +324,7 @@ def reconstruct(
             motions.append(dataclasses.replace(motion, frames=motion.frames + span.first, edge_frames=motion.edge_frames + span.first))
             all_masks.append(dataclasses.replace(masks, frames=masks.frames + span.first, keyframes=masks.keyframes + span.first))
         fragments = _final_fragments(fragments, windows, [k for k, _ in found], owner,
-                                     [(m.frames, m.states) for m in motions], config)
+                                     [(m.frames, m.states) for m in motions], config, not capture.has_hand_masks)
         meshes = timed(
             "fusion",
             fuse_tsdf,

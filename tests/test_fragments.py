@@ -130,3 +130,18 @@ def test_fragments_must_tile_the_capture() -> None:
         Fragments(tiles, 30, FPS, np.zeros(30))
     with pytest.raises(ValueError, match="start at frame"):
         Fragments(tuple(dataclasses.replace(f, first=f.first + 1) if f.index == 1 else f for f in tiles), 20, FPS, np.zeros(20))
+
+
+def test_motion_span_ignores_a_small_step_before_the_motion() -> None:
+    # refined drawer states on multi_kitchen_01 (no hand masks) stepped by 8 % of the travel while
+    # the arm reached in, 34 frames before the drawer moved; the start must be the drawer's
+    config = FragmentConfig(padding_s=0.0, state_change_fraction=0.05, min_rest_s=0.5)
+    frames = np.arange(164, 250)
+    states = np.interp(frames, [164, 169, 170, 203, 215, 249], [0.0, 0.0, 0.028, 0.032, 0.345, 0.345])
+    # 5 % of the 0.345 m travel is 1.7 cm: the ramp reaches the end within it at frame 215 (the
+    # span keeps that frame) and stays; before the motion the part was not at rest throughout
+    # (the step), so the start comes from the scene-change run of the motion, not the arm's
+    assert motion_span(frames, states, FPS, config) == (None, 215)
+    evidence = np.zeros(250)
+    evidence[166:172], evidence[203:213] = 0.02, 0.08  # arm reaching in, drawer moving
+    assert motion_span(frames, states, FPS, config, evidence, 3) == (203, 215)

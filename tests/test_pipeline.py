@@ -50,6 +50,10 @@ def test_final_fragments_trim_name_and_drop() -> None:
     # the states pass 5 % of the travel at frame 51 and leave the end state's 5 % at 64
     assert dynamic == [(50 - pad, 65 + pad, "part_0"), (150, 190, "part_1")]
     assert sum(f.last - f.first + 1 for f in final.fragments) == 200
+    # with hand masks the hand-gated scene change spans the interaction (the hand may hold the
+    # part still after it moved): named, not trimmed
+    held = _final_fragments(fragments, windows, [0, 2], [0, 1], [seen_at_rest, lost_early], config, arm_in_evidence=False)
+    assert [(f.first, f.last, f.part) for f in held.dynamic] == [(30, 80, "part_0"), (150, 190, "part_1")]
 
 
 def test_dropped_parts_are_renamed_in_the_fragments() -> None:
