@@ -143,6 +143,7 @@ def _twin_rows(case, gt, robot, target, plan_config, check_config, plans_dir, tw
 
     true_types = {p.part.name: p.part.joint_type for p in gt.parts}
     done: set[str] = set()
+    errors: list[str] = []
     clock, cpu = time.perf_counter(), time.process_time()
     try:
         twin_parts = [p.name for p in read_articulation(twin).parts]
@@ -160,7 +161,7 @@ def _twin_rows(case, gt, robot, target, plan_config, check_config, plans_dir, tw
             T_scene_plan = T_scene_plan_from_gt(plan, gt.root)
             joint = nearest_gt_joint(gt.root, T_scene_plan, task.p_world_contact)
         except FunrecError as exc:
-            log.info("%s %s: %s", case, name, exc)
+            errors.append(f"twin {name}: {exc}")
             continue  # judged below as its true part's failure, if no other twin part succeeds
         if joint in done:
             continue
@@ -172,7 +173,7 @@ def _twin_rows(case, gt, robot, target, plan_config, check_config, plans_dir, tw
         yield _checked(case, joint, plan, report, plan_time, plan_cpu)
     for name, joint_type in true_types.items():
         if name not in done:
-            yield _not_planned(case, name, joint_type, why, clock, cpu)
+            yield _not_planned(case, name, joint_type, "; ".join(errors) or why, clock, cpu)
 
 
 def summarize(rows: Sequence[BenchRow]) -> dict[str, Any]:
