@@ -18,8 +18,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import threading
-import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass
@@ -40,31 +38,13 @@ from funrec.capture import load_capture
 from funrec.errors import FunrecError
 from funrec.evaluate import EvalConfig, evaluate_twin, failed_evaluation
 from funrec.fragment_metrics import FragmentScore, score_twin_fragments
+from funrec.launcher import run_limited
 
 LOGGER = logging.getLogger(__name__)
 
 METHODS = ("funrec", "oracle", "trivial")
 """Methods :func:`run_bench` can run: the reconstruction, and the two reference baselines."""
 _BASELINE_SNIPPET = "import sys; from funrec.baselines import {function}; {function}(sys.argv[1], sys.argv[2])"
-# Forks the measured command from a bare interpreter (~10 MB) and writes its wait status,
-# ru_maxrss and CPU time (user + system, seconds) to argv[1]. Linux carries a process's peak RSS across fork and exec (exec records
-# the old address space's high-water mark), so a command started straight from the bench
-# would report at least the bench's own RSS.
-_LAUNCHER = (
-    "import os, sys\n"
-    "pid = os.fork()\n"
-    "if pid == 0:\n"
-    "    try:\n"
-    "        os.execvp(sys.argv[2], sys.argv[2:])\n"
-    "    except OSError as exc:\n"
-    "        sys.stderr.write(f'cannot run {sys.argv[2]}: {exc}\\n')\n"
-    "        os._exit(127)\n"
-    "_, status, rusage = os.wait4(pid, 0)\n"
-    "with open(sys.argv[1], 'w') as f:\n"
-    "    f.write(f'{status} {rusage.ru_maxrss} {rusage.ru_utime + rusage.ru_stime}')\n"
-    "code = os.waitstatus_to_exitcode(status)\n"
-    "sys.exit(code if code >= 0 else 128 - code)\n"
-)
 _PROJECT_ROOT = Path(__file__).resolve().parents[1]
 
 STANDARD_ABLATIONS: tuple[tuple[str, tuple[str, ...]], ...] = (
@@ -126,59 +106,17 @@ class _ChildResult:
     timed_out: bool
     """True if it was killed at the time limit."""
     cpu_s: float | None = None
-    """CPU time (user + system) of the command and the descendants it waited for, seconds;
-    None if it was killed before reporting."""
+    """CPU time (user + system) of the command and the descendants it waited for, seconds."""
 
 
 def _run_child(command: list[str], log_path: Path, timeout_s: float, active: set[int] | None = None) -> _ChildResult:
-    """Run ``command`` in its own session, killing the whole group after ``timeout_s``.
-
-    The command runs under a bare-interpreter launcher (see ``_LAUNCHER``) that reaps it with
-    ``os.wait4`` and reports its own ``ru_maxrss`` (KiB on Linux) and CPU time: the peak memory
-    and CPU time of the command and the descendants it waited for, not of the bench. CPU time
-    is the throughput measure that holds on a shared machine, where wall time depends on load. The process-group id is in
-    ``active`` while it runs, so an interrupted bench can kill it (its own session does not
-    receive the terminal's Ctrl-C).
-    """
-    active = set() if active is None else active
+    """Run ``command`` through :func:`funrec.launcher.run_limited` (own session, group killed after
+    ``timeout_s``, peak RSS and CPU time of the command rather than of the bench; CPU time is the
+    throughput measure that holds on a shared machine), importing the same funrec as this process."""
     env = dict(os.environ)
-    # The child must import the same funrec as this process, installed or not.
     env["PYTHONPATH"] = os.pathsep.join([str(_PROJECT_ROOT), *filter(None, [env.get("PYTHONPATH")])])
-    log_path.parent.mkdir(parents=True, exist_ok=True)
-    rusage_path = log_path.with_name(f".{log_path.name}.rusage")
-    rusage_path.unlink(missing_ok=True)
-    timed_out = threading.Event()
-    start = time.perf_counter()
-    with open(log_path, "wb") as log:
-        process = subprocess.Popen(
-            [sys.executable, "-I", "-S", "-c", _LAUNCHER, str(rusage_path), *command],
-            stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=env, start_new_session=True,
-        )
-
-        def kill() -> None:
-            timed_out.set()
-            try:
-                os.killpg(process.pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
-
-        timer = threading.Timer(timeout_s, kill)
-        active.add(process.pid)
-        timer.start()
-        try:
-            process.wait()
-        finally:
-            timer.cancel()
-            active.discard(process.pid)
-    wall_s = time.perf_counter() - start
-    try:
-        status_text, maxrss_kib, cpu_text = rusage_path.read_text().split()
-        rusage_path.unlink()
-        returncode, peak_rss_mb = os.waitstatus_to_exitcode(int(status_text)), int(maxrss_kib) / 1024.0
-        cpu_s: float | None = float(cpu_text)
-    except (OSError, ValueError):  # killed before the launcher could report
-        returncode, peak_rss_mb, cpu_s = process.returncode, None, None
-    return _ChildResult(returncode, wall_s, peak_rss_mb, timed_out.is_set(), cpu_s)
+    run = run_limited(command, log_path, timeout_s, env=env, active=active)
+    return _ChildResult(run.returncode, run.seconds, run.peak_mb, run.timed_out, run.cpu_s)
 
 
 def _method_command(method: str, extra: tuple[str, ...], capture: str, twin: str) -> list[str]:

@@ -6,7 +6,7 @@ learned from those detections in the same video.
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,7 +16,7 @@ import numpy as np
 from funrec.capture import Capture
 from funrec.geometry.joints import joint_transforms
 from funrec.geometry.transforms import invert_transform
-from funrec.segmentation import PartMasks, decode_mask, encode_mask
+from funrec.segmentation import EncodedMasks, PartMasks, decode_mask, encode_mask
 from funrec.tracking import CameraTrajectory, Progress
 from funrec.twin_format import ArticulatedPart
 from funrec.typed import BoolArray, Float32Array, FloatArray, IntArray, UInt8Array
@@ -122,39 +122,18 @@ class HandConfig:
 
 
 @dataclass(frozen=True)
-class HandMasks:
-    """Per-frame hand masks, PNG-encoded so a long video never holds (F, H, W) arrays."""
+class HandMasks(EncodedMasks):
+    """Per-frame hand masks (255 = hand or arm), every frame of the capture in order."""
 
-    frames: IntArray
-    """(F,) frame indices, every frame of the capture in order."""
-    png: tuple[bytes, ...]
-    """(F,) 8-bit single-channel PNG of each mask (255 = hand or arm, 0 = not), H x W."""
-    height: int
-    """Image height H in pixels."""
-    width: int
-    """Image width W in pixels."""
     source: str
     """"capture" (the capture's masks/hand/ files) or "detected" (:func:`detect_hands`)."""
     colour_model: bool = False
     """True when detected masks were grown with a learned skin-colour model."""
 
     def __post_init__(self) -> None:
-        if np.ndim(self.frames) != 1 or len(self.png) != len(self.frames):
-            raise ValueError(f"frames must be (F,) with one PNG each, got {np.shape(self.frames)} and {len(self.png)}")
+        super().__post_init__()
         if self.source not in HAND_SOURCES:
             raise ValueError(f"source must be one of {HAND_SOURCES}, got {self.source!r}")
-
-    def __len__(self) -> int:
-        return len(self.frames)
-
-    def mask(self, index: int) -> BoolArray:
-        """(H, W) bool mask at position ``index`` of :attr:`frames`."""
-        return decode_mask(self.png[index])
-
-    def __iter__(self) -> Iterator[tuple[int, BoolArray]]:
-        """Yield ``(frame, mask)`` one mask at a time."""
-        for index, frame in enumerate(self.frames):
-            yield int(frame), self.mask(index)
 
 
 def part_poses(part: ArticulatedPart, frame_count: int) -> FloatArray:

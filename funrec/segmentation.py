@@ -106,24 +106,22 @@ class SegmentationConfig:
 
 
 @dataclass(frozen=True)
-class PartMasks:
-    """Per-frame masks of one articulated part, stored PNG-encoded so a long video never holds
-    (F_k, H, W) arrays; the bytes are exactly the files of FORMATS.md masks/part_k/."""
+class EncodedMasks:
+    """Per-frame binary masks stored PNG-encoded, so a long video never holds (F, H, W) arrays;
+    shared by part masks and hand masks."""
 
     frames: IntArray
-    """(F_k,) frame indices (capture order) with a mask."""
+    """(F,) frame indices (capture order) with a mask."""
     png: tuple[bytes, ...]
-    """(F_k,) 8-bit single-channel PNG of each mask (255 = part, 0 = not)."""
+    """(F,) 8-bit single-channel PNG of each mask (255 = in, 0 = out)."""
     height: int
     """Image height H in pixels."""
     width: int
     """Image width W in pixels."""
-    keyframes: IntArray
-    """(Q,) frame indices whose over-segmentation built the part model (empty if none)."""
 
     def __post_init__(self) -> None:
         if np.ndim(self.frames) != 1 or len(self.png) != len(self.frames):
-            raise ValueError(f"frames must be (F_k,) with one PNG each, got {np.shape(self.frames)} and {len(self.png)}")
+            raise ValueError(f"frames must be (F,) with one PNG each, got {np.shape(self.frames)} and {len(self.png)}")
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -136,6 +134,15 @@ class PartMasks:
         """Yield ``(frame, mask)`` one mask at a time."""
         for index, frame in enumerate(self.frames):
             yield int(frame), self.mask(index)
+
+
+@dataclass(frozen=True)
+class PartMasks(EncodedMasks):
+    """Per-frame masks of one articulated part; the bytes are exactly the files of FORMATS.md
+    masks/part_k/ (255 = part)."""
+
+    keyframes: IntArray
+    """(Q,) frame indices whose over-segmentation built the part model (empty if none)."""
 
     @classmethod
     def from_masks(cls, frames: npt.ArrayLike, masks: npt.ArrayLike, keyframes: npt.ArrayLike = ()) -> PartMasks:
