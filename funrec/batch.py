@@ -3,29 +3,26 @@ limit, run by a local process pool or by Ray tasks, resumable, with one summary 
 
 Each capture runs in its own process (started by funrec/launcher.py, which sets RLIMIT_AS and reports the
 peak RSS), so a crash, an out-of-memory kill or a timeout is one failure row and never stops the others. The local
-pool and Ray run the same :func:`run_capture`, so both give the same twins.
+pool and Ray run the same :func:`run_capture` through :func:`funrec.scheduler.run_jobs` (the scheduler
+``funrec bench`` uses too), so both give the same twins.
 """
 
 from __future__ import annotations
 
 import csv
 import logging
-import os
 import shutil
 import sys
 import time
-from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
 
 from funrec.errors import FunrecError
-from funrec.launcher import run_limited
+from funrec.scheduler import Progress, run_funrec_child, run_jobs
 
 log = logging.getLogger(__name__)
 
-_PROJECT_ROOT = Path(__file__).resolve().parents[1]
-COLUMNS = ("capture", "status", "parts", "seconds", "peak_mb", "error")
+COLUMNS = ("capture", "status", "parts", "seconds", "cpu_s", "peak_mb", "error")
 """Columns of the summary table (plus axis_error_deg, state_error and failed_parts with evaluation)."""
 
 
@@ -70,6 +67,8 @@ class CaptureResult:
     """Peak resident memory of the reconstruct process, MiB (None if skipped or killed before reporting)."""
     error: str | None
     """Why it failed (the last line of its log)."""
+    cpu_s: float | None = None
+    """CPU time (user + system) of the reconstruct process and its children, seconds (None if skipped or killed)."""
     axis_error_deg: float | None = None
     """Mean axis error of the matched true parts, degrees (with evaluation)."""
     state_error: float | None = None
@@ -168,10 +167,12 @@ def _evaluate(row: CaptureResult, twin_dir: Path, capture: Path) -> CaptureResul
     )
 
 
-def run_capture(capture: str | Path, out_dir: str | Path, config: BatchConfig = BatchConfig()) -> CaptureResult:  # noqa: B008 (frozen, immutable default)
+def run_capture(capture: str | Path, out_dir: str | Path, config: BatchConfig = BatchConfig(),  # noqa: B008 (frozen, immutable default)
+                active: set[int] | None = None) -> CaptureResult:
     """Reconstruct one capture into ``out_dir/twins/<name>`` in a memory-limited process; never raises.
 
     A complete twin already there is kept ('skipped'); leftovers of an interrupted run are removed first.
+    ``active`` (local scheduler) holds the process group while it runs, to be killed on an interruption.
     """
     capture, out_dir = Path(capture), Path(out_dir)
     twin = out_dir / "twins" / capture.name
@@ -185,62 +186,15 @@ def run_capture(capture: str | Path, out_dir: str | Path, config: BatchConfig = 
     log_path.parent.mkdir(parents=True, exist_ok=True)
     twin.parent.mkdir(parents=True, exist_ok=True)
     command = [sys.executable, "-m", "funrec", "reconstruct", str(capture), "-o", str(twin), *config.reconstruct_args]
-    env = dict(os.environ)
-    # The worker must import the same funrec as this process, installed or not.
-    env["PYTHONPATH"] = os.pathsep.join([str(_PROJECT_ROOT), *filter(None, [env.get("PYTHONPATH")])])
-    run = run_limited(command, log_path, config.timeout_s, config.memory_limit_mb, env)
-    code, seconds, peak_mb, timed_out = run.returncode, run.seconds, run.peak_mb, run.timed_out
-    if timed_out:
-        row = CaptureResult(capture.name, "timeout", None, seconds, peak_mb, f"timeout after {config.timeout_s:g} s")
-    elif code != 0 or not twin_is_complete(twin):
-        row = CaptureResult(capture.name, "failed", None, seconds, peak_mb, f"exit code {code}: {_last_line(log_path)}")
+    run = run_funrec_child(command, log_path, config.timeout_s, config.memory_limit_mb, active)
+    if run.timed_out:
+        status, parts, error = "timeout", None, f"timeout after {config.timeout_s:g} s"
+    elif run.returncode != 0 or not twin_is_complete(twin):
+        status, parts, error = "failed", None, f"exit code {run.returncode}: {_last_line(log_path)}"
     else:
-        row = CaptureResult(capture.name, "ok", _part_count(twin), seconds, peak_mb, None)
+        status, parts, error = "ok", _part_count(twin), None
+    row = CaptureResult(capture.name, status, parts, run.seconds, run.peak_mb, error, run.cpu_s)
     return _evaluate(row, twin, capture) if config.evaluate else row
-
-
-Progress = Callable[[int, int], None]
-"""progress(done, total) after each capture."""
-
-
-def _run_local(captures: list[Path], out_dir: Path, config: BatchConfig, progress: Progress | None) -> list[CaptureResult]:
-    # Threads only wait on the reconstruct processes, so a thread pool is a process pool here.
-    rows = []
-    with ThreadPoolExecutor(max_workers=config.workers) as pool:
-        futures = [pool.submit(run_capture, c, out_dir, config) for c in captures]
-        for future in as_completed(futures):
-            rows.append(future.result())
-            if progress is not None:
-                progress(len(rows), len(captures))
-    return rows
-
-
-def _run_ray(captures: list[Path], out_dir: Path, config: BatchConfig, progress: Progress | None) -> list[CaptureResult]:
-    try:
-        import ray
-    except ImportError:
-        raise FunrecError("--ray needs Ray: pip install 'ray>=2.9' (or funrec[ray])") from None
-    started = not ray.is_initialized()
-    if started:
-        if config.ray == "local":
-            ray.init(num_cpus=config.workers, include_dashboard=False, log_to_driver=False)
-        else:
-            ray.init(address=config.ray, log_to_driver=False)
-    try:
-        # Ray schedules each task on a node with a free CPU and the reserved memory; no retries, since a
-        # failing capture is a row, not a lost task.
-        task = ray.remote(num_cpus=1, memory=max(config.memory_limit_mb, 1) * 2**20, max_retries=0)(run_capture)
-        pending = [task.remote(str(c), str(out_dir), config) for c in captures]
-        rows = []
-        while pending:
-            done, pending = ray.wait(pending, num_returns=1)
-            rows.extend(ray.get(done))
-            if progress is not None:
-                progress(len(rows), len(captures))
-        return rows
-    finally:
-        if started:
-            ray.shutdown()
 
 
 def run_batch(
@@ -264,8 +218,8 @@ def run_batch(
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
-    run = _run_local if config.ray is None else _run_ray
-    rows = sorted(run(captures, out_dir, config, progress), key=lambda r: r.capture)
+    jobs = [(str(c), str(out_dir), config) for c in captures]
+    rows = run_jobs(run_capture, jobs, config.workers, config.ray, config.memory_limit_mb, progress)
     backend = "processes" if config.ray is None else f"ray {config.ray}"
     report = BatchReport(tuple(rows), out_dir, time.perf_counter() - start, config.workers, backend)
     write_summary(report, config.evaluate)

@@ -15,11 +15,8 @@ import os
 import platform
 import shlex
 import shutil
-import signal
 import subprocess
 import sys
-from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
@@ -38,7 +35,8 @@ from funrec.capture import load_capture
 from funrec.errors import FunrecError
 from funrec.evaluate import EvalConfig, evaluate_twin, failed_evaluation
 from funrec.fragment_metrics import FragmentScore, score_twin_fragments
-from funrec.launcher import run_limited
+from funrec.launcher import LimitedRun
+from funrec.scheduler import Progress, run_funrec_child, run_jobs
 
 LOGGER = logging.getLogger(__name__)
 
@@ -59,7 +57,7 @@ articulation-constrained part-motion refinement, point-track re-seeding and the 
 ABLATION_SETS: dict[str, tuple[tuple[str, tuple[str, ...]], ...]] = {"none": (), "standard": STANDARD_ABLATIONS}
 """Named ablation sets selectable with BenchConfig.ablation_set."""
 
-ProgressCallback = Callable[[int, int], None]
+ProgressCallback = Progress
 """``progress(done, total)``, called after each (method, sequence) run; the CLI draws a bar."""
 
 
@@ -89,34 +87,17 @@ class BenchConfig:
     generate_missing: bool = True
     """Generate missing sequences with funrec.synth.generate_suite before running."""
     jobs: int = 1
-    """Sequences run in parallel (each in its own subprocess)."""
+    """Sequences run in parallel (each in its own subprocess), or the CPUs of the Ray instance of --ray local."""
+    ray: str | None = None
+    """Run the sequences as Ray tasks through funrec batch's scheduler: 'local' starts a Ray instance on this
+    machine, otherwise a cluster address ('auto', 'ray://host:10001') whose nodes see the suite and report
+    folders; None runs local processes."""
+    memory_limit_mb: int = 0
+    """Address-space limit (RLIMIT_AS) of each run, MiB, as in funrec batch; 0 = none. Also the memory Ray
+    reserves per task (1 MiB when 0)."""
     evaluation: EvalConfig = EvalConfig()
     """Evaluation settings."""
 
-
-
-@dataclass(frozen=True)
-class _ChildResult:
-    returncode: int
-    """Exit code of the command; negative: killed by that signal."""
-    wall_s: float
-    """Wall time from start to exit, seconds."""
-    peak_rss_mb: float | None
-    """Peak resident memory of the command, MiB; None if it was killed before reporting."""
-    timed_out: bool
-    """True if it was killed at the time limit."""
-    cpu_s: float | None = None
-    """CPU time (user + system) of the command and the descendants it waited for, seconds."""
-
-
-def _run_child(command: list[str], log_path: Path, timeout_s: float, active: set[int] | None = None) -> _ChildResult:
-    """Run ``command`` through :func:`funrec.launcher.run_limited` (own session, group killed after
-    ``timeout_s``, peak RSS and CPU time of the command rather than of the bench; CPU time is the
-    throughput measure that holds on a shared machine), importing the same funrec as this process."""
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join([str(_PROJECT_ROOT), *filter(None, [env.get("PYTHONPATH")])])
-    run = run_limited(command, log_path, timeout_s, env=env, active=active)
-    return _ChildResult(run.returncode, run.seconds, run.peak_mb, run.timed_out, run.cpu_s)
 
 
 def _method_command(method: str, extra: tuple[str, ...], capture: str, twin: str) -> list[str]:
@@ -135,16 +116,18 @@ def _last_line(log_path: Path) -> str:
 
 
 def _run_sequence(
-    label: str, method: str, extra: tuple[str, ...], capture: Path, out_dir: Path, config: BenchConfig, active: set[int]
+    label: str, method: str, extra: tuple[str, ...], capture: Path, out_dir: Path, config: BenchConfig,
+    active: set[int] | None = None,
 ) -> SequenceResult:
-    """Run one method on one capture and evaluate; every failure becomes a result, never an exception."""
+    """Run one method on one capture and evaluate; every failure becomes a result, never an exception.
+    A job of :func:`funrec.scheduler.run_jobs`, the scheduler of funrec batch."""
     twin = out_dir / "twins" / label / capture.name
     log_path = out_dir / "logs" / label / f"{capture.name}.log"
     gt_dir = capture / "gt"
 
-    def failure(status: str, reason: str, frames: int = 0, child: _ChildResult | None = None) -> SequenceResult:
+    def failure(status: str, reason: str, frames: int = 0, child: LimitedRun | None = None) -> SequenceResult:
         LOGGER.warning("%s on %s: %s", label, capture.name, reason)
-        wall, rss, cpu = (child.wall_s, child.peak_rss_mb, child.cpu_s) if child else (None, None, None)
+        wall, rss, cpu = (child.seconds, child.peak_mb, child.cpu_s) if child else (None, None, None)
         return SequenceResult(capture.name, label, status, reason, frames, wall, rss, failed_evaluation(twin, gt_dir, reason), twin, log_path, cpu)
 
     try:
@@ -155,7 +138,8 @@ def _run_sequence(
         shutil.rmtree(twin)  # a stale twin from an earlier bench must never be scored
     twin.parent.mkdir(parents=True, exist_ok=True)
     try:
-        child = _run_child(_method_command(method, extra, str(capture), str(twin)), log_path, config.timeout_s, active)
+        command = _method_command(method, extra, str(capture), str(twin))
+        child = run_funrec_child(command, log_path, config.timeout_s, config.memory_limit_mb, active)
     except OSError as exc:  # cannot start the process or write its log
         return failure("failed", f"cannot run: {exc}", frame_count)
     if child.timed_out:
@@ -169,7 +153,7 @@ def _run_sequence(
         return failure("failed", f"evaluation crashed: {type(exc).__name__}: {exc}", frame_count, child)
     status, reason = ("ok", None) if evaluation.ok else ("failed", evaluation.failure)
     return SequenceResult(
-        capture.name, label, status, reason, frame_count, child.wall_s, child.peak_rss_mb, evaluation, twin, log_path, child.cpu_s,
+        capture.name, label, status, reason, frame_count, child.seconds, child.peak_mb, evaluation, twin, log_path, child.cpu_s,
         _fragment_score(twin, gt_dir),
     )
 
@@ -250,8 +234,10 @@ def _ablations(config: BenchConfig) -> tuple[tuple[str, tuple[str, ...]], ...]:
         raise FunrecError(f"unknown ablation set {config.ablation_set!r}; expected one of {list(ABLATION_SETS)}")
     if config.ablation_set != "none" and config.method != "funrec":
         raise FunrecError(f"ablation set {config.ablation_set!r} ablates funrec; the method is {config.method!r}")
-    if config.jobs < 1 or not config.timeout_s > 0:
-        raise FunrecError(f"jobs must be >= 1 and timeout_s > 0, got {config.jobs} and {config.timeout_s}")
+    if config.jobs < 1 or not config.timeout_s > 0 or config.memory_limit_mb < 0:
+        raise FunrecError(
+            f"jobs must be >= 1, timeout_s > 0 and memory_limit_mb >= 0, got {config.jobs}, {config.timeout_s} and {config.memory_limit_mb}"
+        )
     for ablation in config.ablations:
         if len(ablation) != 2 or not isinstance(ablation[0], str) or not all(isinstance(a, str) for a in ablation[1]):
             raise FunrecError(f"each ablation must be (label, [extra args]), got {ablation!r}")
@@ -308,27 +294,9 @@ def run_bench(
     runs = [(config.method, config.method, config.reconstruct_args, captures)]
     runs += [(label, "funrec", config.reconstruct_args + extra, ablation_captures) for label, extra in ablations]
     tasks = [(label, method, extra, capture) for label, method, extra, run_captures in runs for capture in run_captures]
-    results: dict[tuple[str, str], SequenceResult] = {}
-    active: set[int] = set()
-    pool = ThreadPoolExecutor(max_workers=config.jobs)
-    try:
-        futures = [pool.submit(_run_sequence, label, method, extra, capture, out_dir, config, active) for label, method, extra, capture in tasks]
-        for future in as_completed(futures):
-            result = future.result()
-            results[(result.method, result.name)] = result
-            if progress is not None:
-                progress(len(results), len(tasks))
-    except BaseException:
-        # Interrupted (or a bug): stop queued runs and kill running children instead of
-        # waiting up to timeout_s for each.
-        pool.shutdown(wait=False, cancel_futures=True)
-        for pgid in list(active):
-            try:
-                os.killpg(pgid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
-        raise
-    pool.shutdown()
+    jobs = [(label, method, extra, capture, out_dir, config) for label, method, extra, capture in tasks]
+    finished = run_jobs(_run_sequence, jobs, config.jobs, config.ray, config.memory_limit_mb, progress)
+    results = {(result.method, result.name): result for result in finished}
     methods = []
     for label, method, extra, run_captures in runs:
         rows = tuple(results[(label, c.name)] for c in run_captures)

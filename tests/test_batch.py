@@ -39,8 +39,9 @@ def test_failures_are_rows_finished_twins_are_skipped_and_partials_removed(tmp_p
     assert [(r["capture"], r["status"], r["parts"]) for r in rows] == [("a_broken", "failed", ""), ("b_done", "skipped", "0")]
     assert "exit code 2" in rows[0]["error"] and "a_broken" in rows[0]["error"]  # the CaptureError names the folder
     assert float(rows[0]["seconds"]) > 0 and float(rows[0]["peak_mb"]) > 10  # a Python process holds > 10 MB
+    assert 0 < float(rows[0]["cpu_s"])  # importing funrec takes CPU time
     assert not partial.exists() and not (out / "twins" / "a_broken").exists()
-    assert "| capture | status | parts | seconds | peak_mb | error |" in (out / "summary.md").read_text()
+    assert "| capture | status | parts | seconds | cpu_s | peak_mb | error |" in (out / "summary.md").read_text()
 
 
 def test_memory_limit_kills_the_capture_not_the_batch(tmp_path):
