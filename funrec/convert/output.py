@@ -1,13 +1,11 @@
 """The capture folder a converter writes: staged in a temporary sibling folder, validated with
-``load_capture`` and renamed into place only when complete (the pattern of ``export.twin.TwinWriter``)."""
+``load_capture`` and renamed into place only when complete (:mod:`funrec.staged_folder`, as ``export.twin.TwinWriter``)."""
 
 from __future__ import annotations
 
 import dataclasses
 import json
 import logging
-import shutil
-import tempfile
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -21,6 +19,7 @@ from funrec.convert.config import ConvertConfig
 from funrec.convert.report import ConversionReport, DroppedFrame, find_gaps
 from funrec.errors import CaptureError, FunrecError
 from funrec.ground_truth import GroundTruthPart, write_ground_truth_json
+from funrec.staged_folder import discard_folder, publish_folder, stage_folder
 from funrec.typed import FloatArray
 
 log = logging.getLogger(__name__)
@@ -59,13 +58,9 @@ class CaptureOutput:
         self._gt_extra: dict[str, Any] = {}
 
     def __enter__(self) -> CaptureOutput:
-        if self.out_dir.exists() and not self.config.overwrite:
-            if not self.out_dir.is_dir() or any(self.out_dir.iterdir()):
-                raise FunrecError(f"{self.out_dir}: output exists and is not empty (use --overwrite to replace it)")
         if self.out_dir.resolve() == self.source.resolve():
             raise FunrecError(f"{self.out_dir}: the output folder cannot be the source")
-        self.out_dir.parent.mkdir(parents=True, exist_ok=True)
-        self._tmp = Path(tempfile.mkdtemp(prefix=f".{self.out_dir.name}.partial-", dir=self.out_dir.parent))
+        self._tmp = stage_folder(self.out_dir, self.config.overwrite)
         return self
 
     @property
@@ -215,20 +210,14 @@ class CaptureOutput:
         tmp, self._tmp = self._tmp, None
         assert tmp is not None
         if exc_type is not None:
-            shutil.rmtree(tmp, ignore_errors=True)
+            discard_folder(tmp)
             return
         try:
             self._report = self._finish(tmp)
         except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
+            discard_folder(tmp)
             raise
-        old = None
-        if self.out_dir.exists():
-            old = self.out_dir.with_name(f".{self.out_dir.name}.old-{tmp.name.rsplit('-', 1)[-1]}")
-            self.out_dir.rename(old)
-        tmp.rename(self.out_dir)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
+        publish_folder(tmp, self.out_dir)
         log.info("capture written to %s", self.out_dir)
 
 

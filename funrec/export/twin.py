@@ -4,8 +4,6 @@ into place only when complete, so a failed run never leaves a half-written twin.
 from __future__ import annotations
 
 import logging
-import shutil
-import tempfile
 from pathlib import Path
 from types import TracebackType
 
@@ -14,6 +12,7 @@ import numpy.typing as npt
 from funrec.camera_poses import write_camera_poses
 from funrec.capture import write_mask
 from funrec.errors import FunrecError
+from funrec.staged_folder import discard_folder, publish_folder, stage_folder
 from funrec.twin_format import TwinArticulation, write_articulation
 
 log = logging.getLogger(__name__)
@@ -39,11 +38,7 @@ class TwinWriter:
         self._tmp: Path | None = None
 
     def __enter__(self) -> TwinWriter:
-        if self.out_dir.exists() and not self.overwrite:
-            if not self.out_dir.is_dir() or any(self.out_dir.iterdir()):
-                raise FunrecError(f"{self.out_dir}: output exists and is not empty (use --overwrite to replace it)")
-        self.out_dir.parent.mkdir(parents=True, exist_ok=True)
-        self._tmp = Path(tempfile.mkdtemp(prefix=f".{self.out_dir.name}.partial-", dir=self.out_dir.parent))
+        self._tmp = stage_folder(self.out_dir, self.overwrite)
         return self
 
     @property
@@ -76,16 +71,10 @@ class TwinWriter:
         tmp, self._tmp = self._tmp, None
         assert tmp is not None
         if exc_type is not None:
-            shutil.rmtree(tmp, ignore_errors=True)
+            discard_folder(tmp)
             return
         if not (tmp / "articulation.json").is_file():
-            shutil.rmtree(tmp, ignore_errors=True)
+            discard_folder(tmp)
             raise FunrecError(f"{self.out_dir}: twin incomplete (no articulation.json written); nothing was changed")
-        old = None
-        if self.out_dir.exists():
-            old = self.out_dir.with_name(f".{self.out_dir.name}.old-{tmp.name.rsplit('-', 1)[-1]}")
-            self.out_dir.rename(old)
-        tmp.rename(self.out_dir)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
+        publish_folder(tmp, self.out_dir)
         log.info("twin written to %s", self.out_dir)

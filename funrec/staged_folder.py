@@ -1,0 +1,47 @@
+"""Output folders that appear only when complete: written into a temporary sibling folder and renamed into
+place at the end, so a failed run never leaves a half-written twin or capture and never loses the old one.
+
+Used by :class:`funrec.export.twin.TwinWriter` and :class:`funrec.convert.output.CaptureOutput`. A killed run
+leaves only a ``.NAME.partial-*`` sibling, which ``funrec batch`` removes before redoing that capture.
+"""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+from pathlib import Path
+
+from funrec.errors import FunrecError
+
+
+def stage_folder(out_dir: Path, overwrite: bool) -> Path:
+    """A new empty ``.NAME.partial-*`` folder beside ``out_dir`` to write into.
+
+    Raises:
+        FunrecError: ``out_dir`` exists and is not an empty folder, and ``overwrite`` is False.
+    """
+    if out_dir.exists() and not overwrite:
+        if not out_dir.is_dir() or any(out_dir.iterdir()):
+            raise FunrecError(f"{out_dir}: output exists and is not empty (use --overwrite to replace it)")
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    return Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.partial-", dir=out_dir.parent))
+
+
+def publish_folder(staged: Path, out_dir: Path) -> None:
+    """Move the complete ``staged`` folder to ``out_dir``; an existing ``out_dir`` is renamed aside first and
+    deleted only once the new folder is in place."""
+    old = None
+    if out_dir.exists():
+        old = out_dir.with_name(f".{out_dir.name}.old-{staged.name.rsplit('-', 1)[-1]}")
+        out_dir.rename(old)
+    staged.rename(out_dir)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+def discard_folder(staged: Path) -> None:
+    """Delete a staged folder after a failure (``out_dir`` is untouched)."""
+    shutil.rmtree(staged, ignore_errors=True)
+
+
+__all__ = ["discard_folder", "publish_folder", "stage_folder"]
