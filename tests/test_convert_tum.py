@@ -12,9 +12,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from funrec.capture import load_capture
+from funrec.cli import main
 from funrec.convert import ConvertConfig, convert, detect_format
 from funrec.convert.association import associate_nearest
 from funrec.errors import CaptureError, FunrecError
+from funrec.evaluate import evaluate_twin
 from funrec.ground_truth import read_ground_truth
 from funrec.metrics import camera_ate
 from funrec.tracking import track_camera
@@ -140,3 +142,16 @@ def test_real_tum_tracking_ate_against_motion_capture(tum_real):
     assert gt.frame_count == 10 and trajectory.tracked.all()
     ate = camera_ate(trajectory.T_world_camera, gt.T_world_camera)
     assert ate < 0.010, ate
+
+
+def test_real_tum_frames_reconstruct_into_a_static_twin(tum_real, tmp_path):
+    """The whole reconstruction on real Kinect frames of a desk that nobody touches: no articulated part may be
+    invented from sensor noise, and the twin's camera trajectory (the full pipeline, gravity-aligned world)
+    must still match motion capture within the issue's 1 cm (measured 5.9 mm, as tracking alone)."""
+    _, capture = tum_real
+    twin = tmp_path / "twin"
+    assert main(["reconstruct", str(capture), "-o", str(twin)]) == 0
+    evaluation = evaluate_twin(twin, capture / "gt")
+    assert evaluation.ok and evaluation.parts == () and evaluation.invented_parts == ()
+    assert evaluation.camera_ate_cm < 1.0, evaluation.camera_ate_cm
+    assert (twin / "meshes" / "static.ply").stat().st_size > 10_000  # a desk, not an empty mesh
