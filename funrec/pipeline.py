@@ -20,6 +20,7 @@ import numpy.typing as npt
 
 from funrec.affordances import AffordanceConfig, find_affordances, write_affordances
 from funrec.articulation import ArticulationConfig, InteractionEvidence, PartEstimate, estimate_articulation
+from funrec.camera_lock import CameraLockConfig, unlock_camera
 from funrec.capture import Capture, load_capture
 from funrec.export.simulation import ExportConfig, export_simulation
 from funrec.export.twin import TwinWriter
@@ -65,6 +66,8 @@ class ReconstructConfig:
     """Static and dynamic fragments of the video."""
     articulation: ArticulationConfig = field(default_factory=ArticulationConfig)
     """Articulation-aware motion clustering (stage 3), run on each dynamic fragment."""
+    camera_lock: CameraLockConfig = field(default_factory=CameraLockConfig)
+    """When the camera trajectory followed a found part instead of the static scene (undone)."""
     part_merge: PartMergeConfig = field(default_factory=PartMergeConfig)
     """When parts of two fragments are one part (opened twice)."""
     part_motion: PartMotionConfig = field(default_factory=PartMotionConfig)
@@ -306,6 +309,10 @@ def reconstruct(
             for k in range(len(fragments.dynamic))
         ]
         found = timed("articulation", _fragment_parts, windows, _evidence(capture, config), config, change)
+        unlocked = unlock_camera(trajectory, windows, found, config.camera_lock)
+        if unlocked is not None:  # the camera had followed a part: poses and tracks corrected, parts found again
+            trajectory, windows = unlocked
+            found = timed("articulation", _fragment_parts, windows, _evidence(capture, config), config, change)
         in_capture = [dataclasses.replace(part, frames=part.frames + windows[k].first) for k, part in found]
         points = [canonical_part_points(part, windows[k].tracks) for k, part in found]
         estimates, owner = timed("part merge", merge_parts, in_capture, points, config.part_merge)
