@@ -419,7 +419,9 @@ class _Execution:
         next_record = 0.0
         recorder = None
         if video is not None:
-            camera = check_camera(self.p_world_base, self.p_start)
+            seen = np.concatenate([self.indices.bodies, subtree_bodies(model, self.part_body)])
+            p_end = _transform_point(self.T_sp, plan.p_world_grasp_target)
+            camera = check_camera(self.p_world_base, self.p_start, model, data, seen, [p_end])
             recorder = FrameRecorder(model, camera, *cfg.video_size)
         next_frame = 0.0
         steps = int(np.ceil(t_end / dt))

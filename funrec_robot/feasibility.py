@@ -169,6 +169,23 @@ def kinematic_collisions(
     return out
 
 
+def joint_loads(model: mujoco.MjModel, joint: int, states: FloatArray) -> FloatArray:
+    """(N,) generalised force that holding a scene joint's part still at each state takes against gravity and
+    the joint's spring (minus what they exert on it; the rest of the scene at its reference), N m or N."""
+    dof = int(model.jnt_dofadr[joint])
+    data = mujoco.MjData(model)
+    out = []
+    for state in states:
+        data.qpos[:] = model.qpos0
+        data.qpos[model.jnt_qposadr[joint]] = state
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_comPos(model, data)
+        mujoco.mj_rne(model, data, 0, data.qfrc_bias)  # with zero velocity: minus the gravity load
+        spring = model.jnt_stiffness[joint] * (state - model.qpos_spring[model.jnt_qposadr[joint]])
+        out.append(float(data.qfrc_bias[dof] + spring))
+    return np.array(out)
+
+
 def falls_to(model: mujoco.MjModel, joint: int, start: float, target: float, step: float) -> bool:
     """Whether gravity alone carries a scene joint's part from ``start`` to ``target`` (a drop-down door let go
     part-way): its gravity torque or force, at every state between them scanned every ``step``, points towards
@@ -177,18 +194,14 @@ def falls_to(model: mujoco.MjModel, joint: int, start: float, target: float, ste
         return True
     states = np.linspace(start, target, max(2, int(np.ceil(abs(target - start) / step)) + 1))[:-1]
     direction = np.sign(target - start)
-    dof = int(model.jnt_dofadr[joint])
-    data = mujoco.MjData(model)
-    for state in states:
-        data.qpos[:] = model.qpos0
-        data.qpos[model.jnt_qposadr[joint]] = state
-        mujoco.mj_kinematics(model, data)
-        mujoco.mj_comPos(model, data)
-        mujoco.mj_rne(model, data, 0, data.qfrc_bias)  # with zero velocity: minus the gravity load
-        spring = model.jnt_stiffness[joint] * (state - model.qpos_spring[model.jnt_qposadr[joint]])
-        if -direction * (data.qfrc_bias[dof] + spring) <= model.dof_frictionloss[dof]:
-            return False
-    return True
+    friction = model.dof_frictionloss[int(model.jnt_dofadr[joint])]
+    return bool(np.all(-direction * joint_loads(model, joint, states) > friction))
+
+
+def resting_force(model: mujoco.MjModel, joint: int, states: FloatArray, radius: float) -> FloatArray:
+    """(N,) force with which a scene joint's part, let go at each of ``states``, presses on what supports it
+    ``radius`` (m) from a revolute axis: its gravity and spring torque over that radius, N."""
+    return np.abs(joint_loads(model, joint, states)) / max(radius, 1e-3)
 
 
 __all__ = [
@@ -198,5 +211,7 @@ __all__ = [
     "first_blocked_state",
     "first_collision",
     "gravity_overload",
+    "joint_loads",
     "kinematic_collisions",
+    "resting_force",
 ]

@@ -55,6 +55,15 @@ class GraspConfig:
     handle_radius: float = 0.006
     """Geoms of the part within this distance of the contact point are the handle (the gripper may touch
     them; it avoids the rest of the part), m."""
+    fall_roll: float = float(np.pi / 2)
+    """Turn of the gripper about a bar handle, from facing the part's front, by the state where the part is let
+    go to fall (a drop-down door opened as far as the arm reaches): the fingers then point along the front
+    towards the hinge, the door comes to rest across one finger, and the retreat slides the hand off the bar
+    along the door, outwards, which neither lifts nor pushes it (friction there acts through the hinge), rad."""
+    fall_roll_from: float = 0.5
+    """Fraction of the path to that state after which the gripper starts turning towards ``fall_roll``."""
+    fall_state: float | None = None
+    """Set by the planner: the path state where the part is let go to fall (None: it is held to its target)."""
 
 
 @dataclass(frozen=True)
@@ -179,7 +188,28 @@ def handle_frames(
     roll = roll_to_hold(frames[:, :3, :3], frames[0, :3, :3], axis, np.inf)
     spent = tilt if pitch_axis == axis else 0.0
     roll = np.clip(roll, -config.max_roll - spent, config.max_roll - spent)
+    if config.fall_state is not None and task.joint_type == "revolute" and task.handle_axis_world is not None:
+        roll = _towards_fall_roll(task, states, T0, roll, spent, depth, config)
     return frames @ about_contact(axis, roll, depth)
+
+
+def _towards_fall_roll(
+    task: ArticulationTask, states: FloatArray, T0: FloatArray, roll: FloatArray, spent: float, depth: float, config: GraspConfig
+) -> FloatArray:
+    """(N,) the rolls about a bar turned, over the last part of the path up to ``config.fall_state``, to
+    ``fall_roll`` from facing the front, towards the side whose fingers then point at the hinge."""
+    assert config.fall_state is not None and task.pivot_world is not None
+    axis = grasp_free_axis(task)
+    T_fall = T_world_grasp_path(task, np.array([config.fall_state]), T0)[0]
+    contact = T_fall[:3, 3] + depth * T_fall[:3, 2]
+    toward_hinge = task.pivot_world - contact
+    targets = [sign * config.fall_roll - spent for sign in (1.0, -1.0)]
+    z = [(T_fall @ about_contact(axis, np.array([r]), depth)[0])[:3, 2] @ toward_hinge for r in targets]
+    target = targets[int(np.argmax(z))]
+    span = config.fall_state - float(states[0])
+    progress = np.clip((np.asarray(states) - float(states[0])) / span, 0.0, 1.0) if abs(span) > 1e-9 else np.ones(len(states))
+    weight = np.clip((progress - config.fall_roll_from) / (1.0 - config.fall_roll_from), 0.0, 1.0)
+    return (1.0 - weight) * roll + weight * target
 
 
 def offset_along_approach(T_world_grasp: FloatArray, distance: float) -> FloatArray:

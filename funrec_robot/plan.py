@@ -10,7 +10,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import mujoco
@@ -23,6 +23,7 @@ from funrec_robot.feasibility import (
     dynamic_limits,
     falls_to,
     first_blocked_state,
+    resting_force,
 )
 from funrec_robot.grasp import (
     GraspConfig,
@@ -137,9 +138,13 @@ class PlanConfig:
     """Planning stops trying further grasp tilts and base stops after this long, s."""
     footprint_radius: float = 2.5
     """Furniture within this distance of the handle path enters base placement, m."""
-    falling_retreat_scale: float = 0.5
+    falling_retreat_scale: float = 0.2
     """Speed of the retreat from a part let go to fall open (a drop-down door beyond the arm's reach), as a
-    fraction of the usual: it rests on the open fingers until they have slid out from under it."""
+    fraction of the usual: it rests on a finger until the hand has slid off the bar along it."""
+    fall_rest_force: float = 25.0
+    """Such a part is let go no further than where its weight presses on the finger it rests on with this
+    force, N: the hand then slides off the bar against as much friction again (mu ~ 1), well below the
+    handle force bound (50 N) and the wrist's effort limits."""
 
 
 
@@ -341,6 +346,14 @@ def plan_interaction(
             if falls_to(model, joint, target_state, reach_capped["requested"], step):
                 final_state = reach_capped["requested"]
                 reach_capped["released_to_fall"] = True
+                if task.joint_type == "revolute" and task.pivot_world is not None:
+                    radius = float(np.linalg.norm(np.cross(task.axis_world, task.p_world_contact - task.pivot_world)))
+                    light = int(np.argmin(np.r_[resting_force(model, joint, states, radius) <= config.fall_rest_force, False]))
+                    if light >= 2:
+                        states, target_state = states[:light], float(states[light - 1])
+                        reach_capped["state"] = target_state
+                # The gripper turns on the bar to let the door go sideways off a finger (GraspConfig.fall_roll).
+                config = replace(config, grasp=replace(config.grasp, fall_state=target_state))
             candidates = grasp_candidates(robot, task, states, geometry, r_max, config.grasp)
     if not candidates:
         raise PlanningError(
@@ -350,6 +363,7 @@ def plan_interaction(
     errors: list[tuple[int, PlanningError]] = []
     solution = None
     pending = [(bases, rank) for bases, rank in attempts if rank < len(candidates)]
+    postures = list(robot.q_postures)
     while pending and time.perf_counter() - started < config.time_budget:
         bases, rank = pending.pop(0)
         grasp = candidates[rank]
@@ -362,8 +376,12 @@ def plan_interaction(
         try:
             solution = whole_body_configurations(robot, model, joint, task, grasp, states, placement, target_state, geometry.fingertip_depth, config)
         except GravityOverload as exc:
-            # A wrist too weak to hold the gripper level: try the grasps that point it down most first.
             errors.append((1, exc))
+            if postures:  # the robot's next home posture may hold the gripper with less load on the wrist
+                robot = replace(robot, q_home=postures.pop(0))
+                pending.insert(0, (bases, rank))
+                continue
+            # A wrist too weak to hold the gripper level: try the grasps that point it down most first.
             down = {r: float(candidates[r].frames[0, 2, 2]) for r in range(len(candidates))}
             pending.sort(key=lambda attempt: (down[attempt[1]], attempt[0]))
             continue

@@ -20,6 +20,8 @@ Keys (paths are relative to the YAML file, or ``package://<python package>/<path
   default [0, 0, 1]), ``closing_axis`` (grasp y, default [0, 1, 0]), ``offset`` (m, default 0).
 - ``held_joints``: ``{JOINT: position}`` for robot joints the planner never moves (torso, head).
 - ``home``: ``{JOINT: position}`` for planning joints; others start at the model's reference (qpos0).
+- ``postures``: optional list of ``{JOINT: position}`` maps, other home postures (unlisted joints as in
+  ``home``) that the planner tries in order when the arm in ``home`` cannot hold the gripper at the handle.
 - ``limits``: ``position`` ([lower, upper]), ``velocity``, ``acceleration``, ``effort`` per joint;
   these supply or override the model's values. Every planning joint needs all four in the end.
 - ``simulation``: ``gravity_compensation`` (bool), ``damping`` (joint -> value replacing the
@@ -35,7 +37,7 @@ import xml.etree.ElementTree as ET
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -125,6 +127,10 @@ class RobotDescription:
     """Joint damping that replaces the model's in simulation, N s/m or N m s/rad."""
     gravity_compensation: bool
     """Whether the simulated controllers cancel gravity (through the actuators, within effort limits)."""
+    q_postures: tuple[FloatArray, ...] = ()
+    """(nq,) other home configurations the planner tries, in order, when the arm in ``q_home`` cannot hold the
+    gripper at the handle within its effort limits (a 7-DoF arm reaches a grasp in many ways; with a heavy
+    gripper only some keep the wrist's load low)."""
 
     def __post_init__(self) -> None:
         nq = len(self.joint_names)
@@ -138,6 +144,12 @@ class RobotDescription:
         if T_ee_grasp.shape != (4, 4):
             raise ValueError(f"T_ee_grasp: shape {T_ee_grasp.shape}, expected (4, 4)")
         T_ee_grasp.setflags(write=False)
+        postures = tuple(np.array(q, dtype=np.float64) for q in self.q_postures)
+        for q in postures:
+            if q.shape != (nq,):
+                raise ValueError(f"q_postures: shape {q.shape}, expected ({nq},)")
+            q.setflags(write=False)
+        object.__setattr__(self, "q_postures", postures)
         object.__setattr__(self, "T_ee_grasp", T_ee_grasp)
 
     @property
@@ -216,6 +228,8 @@ def _check_groups(facts: ModelFacts, planning: tuple[str, ...]) -> None:
     if multi:
         raise RobotDescriptionError(file.path, f"only hinge and slide joints are supported, not {format_names(multi)}")
     _check_names(file, "home", file.home, planning)
+    for k, posture in enumerate(file.postures):
+        _check_names(file, f"postures[{k}]", posture, planning)
     for key in ("position", "velocity", "acceleration"):
         _check_names(file, f"limits.{key}", getattr(file, f"{key}_limits"), planning)
     per_joint: tuple[tuple[str, Iterable[str]], ...] = (
@@ -235,8 +249,8 @@ def _effort(facts: ModelFacts, name: str) -> float:
     return facts.file.effort_limits.get(name, facts.effort(name))
 
 
-def _limits(facts: ModelFacts, planning: tuple[str, ...]) -> dict[str, FloatArray]:
-    """q_min, q_max, v_max, a_max, effort_max and q_home, model values overridden by the YAML's."""
+def _limits(facts: ModelFacts, planning: tuple[str, ...]) -> dict[str, Any]:
+    """q_min, q_max, v_max, a_max, effort_max, q_home and q_postures, model values overridden by the YAML's."""
     file = facts.file
     ranges = [_joint_range(facts, n) for n in planning]
     limits = {
@@ -253,9 +267,12 @@ def _limits(facts: ModelFacts, planning: tuple[str, ...]) -> dict[str, FloatArra
             raise RobotDescriptionError(
                 file.path, f"limits.{key}: no {key} limit for {format_names(missing)} (the model has none)"
             )
-    outside = [n for n, (low, high), q in zip(planning, ranges, limits["q_home"]) if not low <= q <= high]
-    if outside:
-        raise RobotDescriptionError(file.path, f"home: outside the position limits: {format_names(outside)}")
+    home = {n: float(q) for n, q in zip(planning, limits["q_home"])}
+    limits["q_postures"] = tuple(np.array([{**home, **posture}[n] for n in planning]) for posture in file.postures)
+    for key, q_all in (("home", [limits["q_home"]]), *((f"postures[{k}]", [q]) for k, q in enumerate(limits["q_postures"]))):
+        outside = [n for n, (low, high), q in zip(planning, ranges, q_all[0]) if not low <= q <= high]
+        if outside:
+            raise RobotDescriptionError(file.path, f"{key}: outside the position limits: {format_names(outside)}")
     for name, value in file.held_joints.items():
         low, high = _joint_range(facts, name)
         if not low <= value <= high:

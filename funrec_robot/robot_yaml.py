@@ -85,6 +85,9 @@ class RobotFile:
     """Joint -> viscous damping that replaces the model's in simulation."""
     servos: dict[str, ServoEntry]
     """Joint -> gains of the servo added to it."""
+    postures: tuple[dict[str, float], ...] = ()
+    """Other home postures (planning joint -> position, the rest as in ``home``), tried in order when the arm
+    in the first cannot hold the gripper within its effort limits."""
 
 
 class _Reader:
@@ -158,7 +161,7 @@ class _Reader:
 
 _TOP_KEYS = (
     "name", "model", "urdf", "root_body", "base", "arm_joints", "gripper", "ee",
-    "held_joints", "home", "limits", "simulation",
+    "held_joints", "home", "postures", "limits", "simulation",
 )  # fmt: skip
 _REQUIRED = ("model", "arm_joints", "gripper", "ee")
 
@@ -242,7 +245,16 @@ def read_robot_yaml(path: str | Path) -> RobotFile:
         gravity_compensation=gravity,
         damping=r.number_map(simulation.get("damping"), "simulation.damping", 0.0),
         servos=servos,
+        postures=_postures(r, top.get("postures")),
     )
+
+
+def _postures(r: _Reader, value: object) -> tuple[dict[str, float], ...]:
+    if value is None:
+        return ()
+    if not isinstance(value, list):
+        raise r.fail("postures", f"expected a list of {{joint: position}} maps, got {value!r}")
+    return tuple(r.number_map(entry, f"postures[{k}]") for k, entry in enumerate(value))
 
 
 __all__ = ["BASE_MOTIONS", "PACKAGE_SCHEME", "RobotFile", "ServoEntry", "read_robot_yaml"]

@@ -193,6 +193,24 @@ def test_home_outside_limits(tmp_path: Path, document) -> None:
         load_robot(_write(tmp_path, document))
 
 
+def test_postures_fill_in_from_home_and_are_checked(tmp_path: Path, document) -> None:
+    document["postures"] = [{"arm_joint1": 0.5}, {"arm_joint7": -0.25}]
+    robot = load_robot(_write(tmp_path, document))
+    assert len(robot.q_postures) == 2
+    changed = [np.flatnonzero(q != robot.q_home).tolist() for q in robot.q_postures]
+    assert changed == [[robot.joint_names.index("arm_joint1")], [robot.joint_names.index("arm_joint7")]]
+    assert robot.q_postures[0][robot.joint_names.index("arm_joint1")] == 0.5
+    document["postures"] = [{"arm_joint4": 3.0}]
+    with pytest.raises(RobotDescriptionError, match=r"bad\.yaml: postures\[0\]: outside the position limits: 'arm_joint4'"):
+        load_robot(_write(tmp_path, document))
+    document["postures"] = [{"arm_joint9": 0.0}]
+    with pytest.raises(UnknownNameError, match=r"postures\[0\]"):
+        load_robot(_write(tmp_path, document))
+    document["postures"] = {"arm_joint1": 0.5}
+    with pytest.raises(RobotDescriptionError, match=r"postures: expected a list"):
+        load_robot(_write(tmp_path, document))
+
+
 def test_servo_for_an_actuated_joint(tmp_path: Path, document) -> None:
     document["simulation"]["servos"] = {"arm_joint1": {"kp": 10.0, "kv": 1.0}}
     with pytest.raises(

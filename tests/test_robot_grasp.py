@@ -1,0 +1,51 @@
+"""Grasp frames of a drop-down door let go to fall: the gripper turns on the bar until its fingers point along
+the door towards the hinge, about the contact point, only over the last part of the path."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from funrec_robot.grasp import GraspConfig, handle_frames
+from funrec_robot.task import ArticulationTask
+
+# An oven door: hinge along x at 0.1 m height, a horizontal bar 3.2 cm in front of it at 0.68 m; opening turns
+# the top towards -y (the room), where the robot stands.
+DOOR = ArticulationTask(
+    part="door",
+    joint_type="revolute",
+    axis_world=np.array([1.0, 0.0, 0.0]),
+    pivot_world=np.array([0.0, 0.0, 0.1]),
+    state_range=(0.0, 1.45),
+    state_current=0.0,
+    p_world_contact=np.array([0.0, -0.032, 0.68]),
+    approach_world=np.array([0.0, 1.0, 0.0]),
+    handle_axis_world=np.array([1.0, 0.0, 0.0]),
+    surface_offset=0.031,
+    handle_width=0.015,
+)
+DEPTH = 0.01
+RELEASE = 0.85
+STATES = np.linspace(0.0, RELEASE, 18)
+
+
+def _contact(frames: np.ndarray) -> np.ndarray:
+    return frames[:, :3, 3] + DEPTH * frames[:, :3, 2]
+
+
+def test_gripper_turns_edge_on_to_the_door_by_the_release_state() -> None:
+    held = handle_frames(DOOR, STATES, DEPTH, 0.0, GraspConfig())
+    falling = handle_frames(DOOR, STATES, DEPTH, 0.0, GraspConfig(fall_state=RELEASE))
+    # Up to fall_roll_from (half) of the path nothing changes (1e-12: the same arithmetic).
+    early = STATES <= 0.5 * RELEASE
+    np.testing.assert_allclose(falling[early], held[early], atol=1e-12)
+    # The turn is about the contact point: the fingers stay on the bar (1e-9 m: round-off).
+    np.testing.assert_allclose(_contact(falling), _contact(held), atol=1e-9)
+    # At the release state the approach lies in the door's plane (its outward normal is the canonical one,
+    # -approach, turned with the door; 1e-9: round-off) and points towards the hinge.
+    normal = Rotation.from_rotvec(RELEASE * DOOR.axis_world).apply(-DOOR.approach_world)
+    z = falling[-1, :3, 2]
+    assert abs(z @ normal) < 1e-9
+    assert z @ (DOOR.pivot_world - _contact(falling)[-1]) > 0.0
+    # Held to the end instead, the gripper faces the front within max_roll (45 deg) of level: not edge-on.
+    assert abs(held[-1, :3, 2] @ normal) > 0.5
