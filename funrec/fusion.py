@@ -172,6 +172,7 @@ def fuse_tsdf(
             part_meshes.append(trimesh.Trimesh())
             empty.append(k)
     scenes = [None if k in empty else _raycaster(mesh) for k, mesh in enumerate(part_meshes)]
+    bounds = [None if k in empty else np.asarray(mesh.bounds) for k, mesh in enumerate(part_meshes)]
     for frame in deferred:
         depth_m, rgb, hand = capture.depth_m(frame), capture.rgb(frame), _hand(capture, frame, config)
         T_camera_world = invert_transform(trajectory.T_world_camera[frame])
@@ -186,7 +187,7 @@ def fuse_tsdf(
             # Untracked frame: the part rests at the pose of the nearest tracked frame; leave out
             # the pixels its mesh explains.
             j = int(np.argmin(np.abs(masks.frames - frame)))
-            z_part = _render_depth(scenes[k], T_camera_world @ poses[k][j], K, depth_m.shape)
+            z_part = _render_depth(scenes[k], bounds[k], T_camera_world @ poses[k][j], K, depth_m.shape)
             # Grow the silhouette by the margin with the nearest depth (fills unseen bits of the part).
             z_part = -cv2.dilate(np.where(np.isfinite(z_part), -z_part, -np.inf).astype(np.float32), _disk(config.exclusion_margin_px))
             offset = depth_m - z_part
@@ -273,13 +274,39 @@ def _raycaster(mesh: trimesh.Trimesh) -> o3d.t.geometry.RaycastingScene:
     return scene
 
 
-def _render_depth(scene: o3d.t.geometry.RaycastingScene, T_camera_part: FloatArray, K: FloatArray,
+def _render_depth(scene: o3d.t.geometry.RaycastingScene, bounds: FloatArray, T_camera_part: FloatArray, K: FloatArray,
                   shape: tuple[int, int]) -> FloatArray:
-    """(H, W) depth in metres of the part mesh seen from the camera; inf where no hit."""
+    """(H, W) depth in metres of the part mesh (axis-aligned ``bounds`` (2, 3), part frame) seen
+    from the camera; inf where no hit. Only the pixels inside the image of the mesh's bounding
+    box are cast (the same hits; a door seen from afar covers a small part of the view)."""
     H, W = shape
+    depth = np.full(shape, np.inf)
+    window = _image_window(bounds, T_camera_part, K, shape)
+    if window is None:
+        return depth
+    v0, v1, u0, u1 = window
     rays = o3d.t.geometry.RaycastingScene.create_rays_pinhole(o3d.core.Tensor(K), o3d.core.Tensor(T_camera_part), W, H)
+    rays = o3d.core.Tensor(np.ascontiguousarray(rays.numpy()[v0:v1, u0:u1]))
     # Pinhole rays have direction (x/z, y/z, 1) in the camera frame, so t_hit is the depth.
-    return scene.cast_rays(rays, nthreads=0)["t_hit"].numpy().astype(np.float64)
+    depth[v0:v1, u0:u1] = scene.cast_rays(rays, nthreads=0)["t_hit"].numpy()
+    return depth
+
+
+def _image_window(bounds: FloatArray, T_camera_part: FloatArray, K: FloatArray,
+                  shape: tuple[int, int]) -> tuple[int, int, int, int] | None:
+    """Pixel rows [v0, v1) and columns [u0, u1) that can see the box ``bounds`` (2, 3), part
+    frame: the image of its corners, widened by two pixels (rays pass through pixel centres);
+    the whole image when a corner lies behind the camera, None when the box is out of view."""
+    H, W = shape
+    corners = np.array([[bounds[i, 0], bounds[j, 1], bounds[k, 2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+    p = corners @ T_camera_part[:3, :3].T + T_camera_part[:3, 3]
+    if np.any(p[:, 2] <= 1e-6):
+        return 0, H, 0, W
+    u = K[0, 0] * p[:, 0] / p[:, 2] + K[0, 2]
+    v = K[1, 1] * p[:, 1] / p[:, 2] + K[1, 2]
+    u0, u1 = max(0, int(np.floor(u.min())) - 2), min(W, int(np.ceil(u.max())) + 2)
+    v0, v1 = max(0, int(np.floor(v.min())) - 2), min(H, int(np.ceil(v.max())) + 2)
+    return (v0, v1, u0, u1) if u0 < u1 and v0 < v1 else None
 
 
 def _hand(capture: Capture, frame: int, config: FusionConfig) -> BoolArray:

@@ -16,7 +16,7 @@ import trimesh
 # Shared synthetic-sequence helpers (tests/ is on sys.path under pytest's default import mode).
 from test_segmentation import EstimatedRun, estimated_run, synth_sequence, true_inputs, true_mask  # noqa: F401, F811 (fixture)
 
-from funrec.fusion import _large_pieces, fuse_tsdf
+from funrec.fusion import _large_pieces, _raycaster, _render_depth, fuse_tsdf
 from funrec.geometry.joints import joint_transforms
 from funrec.geometry.transforms import invert_transform, transform_points
 from funrec.metrics import chamfer_distance
@@ -47,6 +47,23 @@ def test_large_pieces_drops_small_fragments() -> None:
     small = np.array([[6, 7, 8]])
     keep = _large_pieces(np.concatenate([big, small]), 9, min_fraction=0.5)
     np.testing.assert_array_equal(keep, [True, True, True, True, False])
+
+
+def test_render_depth_casts_only_the_box_image_with_the_same_hits() -> None:
+    """The windowed raycast equals a full-image raycast: in view, partly out of view, behind."""
+    import open3d as o3d
+
+    box = trimesh.creation.box(extents=(0.4, 0.6, 0.02))
+    scene = _raycaster(box)
+    K = np.array([[300.0, 0.0, 160.0], [0.0, 300.0, 120.0], [0.0, 0.0, 1.0]])
+    shape = (240, 320)
+    for t in ([0.0, 0.0, 1.5], [0.5, -0.2, 1.0], [0.0, 0.0, 0.2], [0.0, 0.0, -1.0], [3.0, 0.0, 1.0]):
+        T_camera_part = np.eye(4)
+        T_camera_part[:3, 3] = t
+        rays = o3d.t.geometry.RaycastingScene.create_rays_pinhole(o3d.core.Tensor(K), o3d.core.Tensor(T_camera_part), 320, 240)
+        full = scene.cast_rays(rays)["t_hit"].numpy().astype(np.float64)
+        # Exact equality: the same rays are cast, only those that cannot hit the box are skipped.
+        np.testing.assert_array_equal(_render_depth(scene, np.asarray(box.bounds), T_camera_part, K, shape), full)
 
 
 def test_fuse_tsdf_validates_inputs(small_sequence: Path) -> None:

@@ -115,3 +115,21 @@ def test_without_masks_the_part_moving_with_the_scene_change_ranks_first() -> No
     assert _motion_scene_change(door, 30, change) == pytest.approx(0.10)
     assert _motion_scene_change(arm, 30, change) == pytest.approx((2 * 0.10 + 15 * 0.01) / 17)
     assert _motion_scene_change(_part(np.arange(10), np.zeros(10)), 30, change) == 0.0
+
+
+def test_reconstruct_limits_blas_threads_while_it_runs(monkeypatch: pytest.MonkeyPatch) -> None:
+    """blas_threads caps every BLAS library inside reconstruct and restores the default after."""
+    import threadpoolctl
+
+    import funrec.pipeline as pipeline
+
+    def blas_threads() -> set[int]:
+        return {pool["num_threads"] for pool in threadpoolctl.threadpool_info() if pool["user_api"] == "blas"}
+
+    seen: list[set[int]] = []
+    monkeypatch.setattr(pipeline, "_reconstruct", lambda *args: seen.append(blas_threads()))
+    outside = blas_threads()
+    pipeline.reconstruct("capture", "twin", ReconstructConfig(blas_threads=1))
+    pipeline.reconstruct("capture", "twin", ReconstructConfig(blas_threads=0))
+    assert seen == [{1}, outside]
+    assert blas_threads() == outside
