@@ -20,6 +20,7 @@ from scipy.sparse.csgraph import connected_components
 from funrec.capture import Capture
 from funrec.errors import ReconstructionError
 from funrec.geometry.transforms import check_transform, invert_transform
+from funrec.hands import HandMasks
 from funrec.segmentation import PartMasks
 from funrec.tracking import CameraTrajectory, Progress
 from funrec.typed import BoolArray, FloatArray
@@ -97,6 +98,7 @@ def fuse_tsdf(
     T_world_part: Sequence[npt.ArrayLike],
     config: FusionConfig = FusionConfig(),
     progress: Progress | None = None,
+    hands: HandMasks | None = None,
 ) -> Meshes:
     """Fuse the static scene and every part into TSDF volumes and extract their meshes.
 
@@ -115,6 +117,9 @@ def fuse_tsdf(
             canonical part -> posed part, world frame.
         config: settings.
         progress: optional ``progress(done, total)`` after each integrated frame.
+        hands: hand (and arm) masks of every frame, e.g. detected ones (:func:`funrec.hands.detect_hands`);
+            None reads the capture's own ``masks/hand`` where present. Without them the person's arm
+            would be fused into the static scene wherever later frames do not see through it.
 
     Returns:
         Static and part meshes.
@@ -148,7 +153,7 @@ def fuse_tsdf(
             deferred.append(frame)  # the static volume waits for the meshes of the unmasked parts
             if not masked:
                 continue
-        depth_m, rgb, hand = capture.depth_m(frame), capture.rgb(frame), _hand(capture, frame, config)
+        depth_m, rgb, hand = capture.depth_m(frame), capture.rgb(frame), _hand(capture, frame, config, hands)
         T_camera_world = invert_transform(trajectory.T_world_camera[frame])
         exclude = hand
         for k in masked:  # parts tracked in different fragments never share a frame
@@ -174,7 +179,7 @@ def fuse_tsdf(
     scenes = [None if k in empty else _raycaster(mesh) for k, mesh in enumerate(part_meshes)]
     bounds = [None if k in empty else np.asarray(mesh.bounds) for k, mesh in enumerate(part_meshes)]
     for frame in deferred:
-        depth_m, rgb, hand = capture.depth_m(frame), capture.rgb(frame), _hand(capture, frame, config)
+        depth_m, rgb, hand = capture.depth_m(frame), capture.rgb(frame), _hand(capture, frame, config, hands)
         T_camera_world = invert_transform(trajectory.T_world_camera[frame])
         exclude = hand
         for k, masks in enumerate(part_masks):
@@ -309,8 +314,8 @@ def _image_window(bounds: FloatArray, T_camera_part: FloatArray, K: FloatArray,
     return (v0, v1, u0, u1) if u0 < u1 and v0 < v1 else None
 
 
-def _hand(capture: Capture, frame: int, config: FusionConfig) -> BoolArray:
-    hand = capture.mask("hand", frame)
+def _hand(capture: Capture, frame: int, config: FusionConfig, hands: HandMasks | None) -> BoolArray:
+    hand = capture.mask("hand", frame) if hands is None else hands.mask(frame)
     if hand is None:
         return np.zeros((capture.intrinsics.height, capture.intrinsics.width), dtype=bool)
     return _dilate(hand, config.exclusion_margin_px)

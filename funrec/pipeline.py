@@ -45,7 +45,8 @@ from funrec.point_tracks import PointTrackConfig
 from funrec.scene_change import SceneChangeConfig, scene_change
 from funrec.segmentation import PartMasks, SegmentationConfig, segment_parts
 from funrec.tracking import TrackingConfig, track_camera
-from funrec.twin_format import TwinArticulation, make_part
+from funrec.twin_format import ArticulatedPart, TwinArticulation, make_part
+from funrec.typed import FloatArray
 
 log = logging.getLogger(__name__)
 
@@ -143,6 +144,14 @@ class ReconstructionSummary:
     stage_cpu_seconds: dict[str, float] = field(default_factory=dict)
     """CPU time (user + system, all threads of the process) of each stage, seconds: on a shared
     machine the measure of a stage's cost that other processes do not inflate."""
+
+
+def _articulated(name: str, motion: PartMotion, T_twin_world: FloatArray, mesh: str | None = None,
+                 masks: str | None = None) -> ArticulatedPart:
+    """The part of ``motion`` as the twin describes it, its joint moved into the twin frame by ``T_twin_world``."""
+    pivot_twin = None if motion.pivot_world is None else transform_points(T_twin_world, motion.pivot_world[None])[0]
+    return make_part(name, motion.joint_type, T_twin_world[:3, :3] @ motion.axis_world, pivot_twin, motion.frames,
+                     motion.states, motion.state_range, mesh=mesh, masks=masks)
 
 
 def _evidence(capture: Capture, config: ReconstructConfig) -> InteractionEvidence | None:
@@ -353,6 +362,11 @@ def _reconstruct(capture_dir: str | Path, out_dir: str | Path, config: Reconstru
             all_masks.append(dataclasses.replace(masks, frames=masks.frames + span.first, keyframes=masks.keyframes + span.first))
         fragments = _final_fragments(fragments, windows, [k for k, _ in found], owner,
                                      [(m.frames, m.states) for m in motions], config, not capture.has_hand_masks)
+        # Hands before fusion, so that detected hands and arms (no masks in the capture) stay out of the static
+        # scene as masked ones do; image-space masks, unchanged by the gravity alignment that follows.
+        moved = [_articulated(f"part_{k}", motion, np.eye(4)) for k, motion in enumerate(motions)]
+        hands = timed("hands", detect_hands, capture, trajectory, moved, all_masks, config.affordances.hands,
+                      progress=stage_progress("hands"))
         meshes = timed(
             "fusion",
             fuse_tsdf,
@@ -362,6 +376,7 @@ def _reconstruct(capture_dir: str | Path, out_dir: str | Path, config: Reconstru
             [m.T_world_part for m in motions],
             config.fusion,
             progress=stage_progress("fusion"),
+            hands=hands,
         )
         T_twin_world = np.eye(4)
         if config.align_gravity:
@@ -380,23 +395,8 @@ def _reconstruct(capture_dir: str | Path, out_dir: str | Path, config: Reconstru
                 writer.path(f"masks/part_{k}/{int(frame):06d}.png").write_bytes(png)
             surfaces.append(mesh.copy().apply_transform(T_twin_world))
             surfaces[-1].export(writer.path(f"meshes/part_{k}.ply"))
-            pivot_twin = None if motion.pivot_world is None else transform_points(T_twin_world, motion.pivot_world[None])[0]
-            parts.append(
-                make_part(
-                    f"part_{k}",
-                    motion.joint_type,
-                    T_twin_world[:3, :3] @ motion.axis_world,
-                    pivot_twin,
-                    motion.frames,
-                    motion.states,
-                    motion.state_range,
-                    mesh=f"meshes/part_{k}.ply",
-                    masks=f"masks/part_{k}",
-                )
-            )
+            parts.append(_articulated(f"part_{k}", motion, T_twin_world, mesh=f"meshes/part_{k}.ply", masks=f"masks/part_{k}"))
         trajectory_twin = dataclasses.replace(trajectory, T_world_camera=T_twin_world @ trajectory.T_world_camera)
-        hands = timed("hands", detect_hands, capture, trajectory_twin, parts, all_masks, config.affordances.hands,
-                      progress=stage_progress("hands"))
         if hands.source == "detected":
             write_hand_masks(writer.path(TWIN_HAND_MASKS), hands)
         affordances = timed("affordances", find_affordances, capture, trajectory_twin, parts, surfaces, all_masks, hands,
