@@ -36,9 +36,12 @@ class BatchConfig:
     """Ray cluster address ('auto', 'ray://host:10001') or 'local' to start a Ray instance on this machine;
     None runs a local process pool. Capture and output folders must be on a file system every node sees."""
     memory_limit_mb: int = 8000
-    """Address-space limit (RLIMIT_AS) of each reconstruct process, MiB; 0 = none. Also the memory Ray reserves
-    per task. A reconstruct at 640x480 peaks near 1 GB resident but maps more virtual memory (thread stacks,
-    allocator arenas, Open3D), so the limit is set well above the resident peak."""
+    """Address-space limit (RLIMIT_AS) of each reconstruct process, MiB; 0 = none. A reconstruct at 640x480 peaks
+    near 1.2 GB resident but maps more virtual memory (thread stacks, allocator arenas, Open3D), so the limit is
+    set well above the resident peak."""
+    task_memory_mb: int = 2000
+    """Resident memory Ray reserves for each capture, MiB (0: none): a 640x480 reconstruct peaked at 1,178 MB on
+    the bench suite. Ray starts a task only on a node with this much unreserved memory."""
     timeout_s: float = 3600.0
     """Wall-time limit of one capture, seconds; the process group is killed after it."""
     evaluate: bool = False
@@ -47,8 +50,10 @@ class BatchConfig:
     """Extra arguments of ``funrec reconstruct`` (stage options)."""
 
     def __post_init__(self) -> None:
-        if self.workers < 1 or not self.timeout_s > 0 or self.memory_limit_mb < 0:
-            raise FunrecError(f"BatchConfig: workers must be >= 1, timeout_s > 0 and memory_limit_mb >= 0, got {self}")
+        if self.workers < 1 or not self.timeout_s > 0 or self.memory_limit_mb < 0 or self.task_memory_mb < 0:
+            raise FunrecError(
+                f"BatchConfig: workers must be >= 1, timeout_s > 0 and the memory sizes >= 0, got {self}"
+            )
 
 
 @dataclass(frozen=True)
@@ -219,7 +224,7 @@ def run_batch(
     out_dir.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
     jobs = [(str(c), str(out_dir), config) for c in captures]
-    rows = run_jobs(run_capture, jobs, config.workers, config.ray, config.memory_limit_mb, progress)
+    rows = run_jobs(run_capture, jobs, config.workers, config.ray, config.task_memory_mb, progress)
     backend = "processes" if config.ray is None else f"ray {config.ray}"
     report = BatchReport(tuple(rows), out_dir, time.perf_counter() - start, config.workers, backend)
     write_summary(report, config.evaluate)

@@ -93,8 +93,9 @@ class BenchConfig:
     machine, otherwise a cluster address ('auto', 'ray://host:10001') whose nodes see the suite and report
     folders; None runs local processes."""
     memory_limit_mb: int = 0
-    """Address-space limit (RLIMIT_AS) of each run, MiB, as in funrec batch; 0 = none. Also the memory Ray
-    reserves per task (1 MiB when 0)."""
+    """Address-space limit (RLIMIT_AS) of each run, MiB, as in funrec batch; 0 = none."""
+    task_memory_mb: int = 2000
+    """Resident memory Ray reserves for each run with --ray, MiB, as in funrec batch (0: none)."""
     evaluation: EvalConfig = EvalConfig()
     """Evaluation settings."""
 
@@ -234,7 +235,7 @@ def _ablations(config: BenchConfig) -> tuple[tuple[str, tuple[str, ...]], ...]:
         raise FunrecError(f"unknown ablation set {config.ablation_set!r}; expected one of {list(ABLATION_SETS)}")
     if config.ablation_set != "none" and config.method != "funrec":
         raise FunrecError(f"ablation set {config.ablation_set!r} ablates funrec; the method is {config.method!r}")
-    if config.jobs < 1 or not config.timeout_s > 0 or config.memory_limit_mb < 0:
+    if config.jobs < 1 or not config.timeout_s > 0 or min(config.memory_limit_mb, config.task_memory_mb) < 0:
         raise FunrecError(
             f"jobs must be >= 1, timeout_s > 0 and memory_limit_mb >= 0, got {config.jobs}, {config.timeout_s} and {config.memory_limit_mb}"
         )
@@ -295,7 +296,7 @@ def run_bench(
     runs += [(label, "funrec", config.reconstruct_args + extra, ablation_captures) for label, extra in ablations]
     tasks = [(label, method, extra, capture) for label, method, extra, run_captures in runs for capture in run_captures]
     jobs = [(label, method, extra, capture, out_dir, config) for label, method, extra, capture in tasks]
-    finished = run_jobs(_run_sequence, jobs, config.jobs, config.ray, config.memory_limit_mb, progress)
+    finished = run_jobs(_run_sequence, jobs, config.jobs, config.ray, config.task_memory_mb, progress)
     results = {(result.method, result.name): result for result in finished}
     methods = []
     for label, method, extra, run_captures in runs:

@@ -5,7 +5,7 @@ A job is a call ``function(*args, active=...)`` that starts one memory-limited s
 :func:`run_funrec_child` and returns a picklable result row; it never raises for a bad capture. Locally,
 each of ``workers`` threads waits on one such subprocess (so the thread pool is a process pool, and
 ``active`` holds the process groups to kill when interrupted). With a Ray address, every job is a Ray task
-with one CPU and the stated memory reserved; Ray places it (its own scheduling, not ours) and ``active`` is
+with one CPU and the stated resident memory reserved; Ray places it (its own scheduling, not ours) and ``active`` is
 None in the task.
 """
 
@@ -37,7 +37,7 @@ def run_funrec_child(command: list[str], log_path: Path, timeout_s: float, memor
 
 
 def run_jobs(function: Callable[..., Row], jobs: Sequence[tuple[Any, ...]], workers: int, ray: str | None = None,
-             memory_limit_mb: int = 0, progress: Progress | None = None) -> list[Row]:
+             task_memory_mb: int = 0, progress: Progress | None = None) -> list[Row]:
     """Results of ``function(*job)`` for every job, in job order.
 
     Args:
@@ -46,7 +46,9 @@ def run_jobs(function: Callable[..., Row], jobs: Sequence[tuple[Any, ...]], work
         workers: jobs run at once locally, or the CPUs of a Ray instance started with ``ray="local"``.
         ray: None for local threads; ``"local"`` to start a Ray instance here; otherwise a cluster address
             (``"auto"``, ``"ray://host:10001"``) whose nodes see the same file system.
-        memory_limit_mb: memory Ray reserves per task (the jobs' own RLIMIT_AS), MiB.
+        task_memory_mb: resident memory Ray reserves per task, MiB (0: none). Ray admits a task only where this
+            much of the node's memory is unreserved, so it must be the job's resident peak, not its address-space
+            limit: reserving an 8 GB RLIMIT_AS per task let a 24 GB machine run one task at a time.
         progress: optional ``progress(done, total)``.
 
     Raises:
@@ -56,7 +58,7 @@ def run_jobs(function: Callable[..., Row], jobs: Sequence[tuple[Any, ...]], work
         raise FunrecError(f"workers must be >= 1, got {workers}")
     if ray is None:
         return _run_local(function, jobs, workers, progress)
-    return _run_ray(function, jobs, workers, ray, memory_limit_mb, progress)
+    return _run_ray(function, jobs, workers, ray, task_memory_mb, progress)
 
 
 def _run_local(function: Callable[..., Row], jobs: Sequence[tuple[Any, ...]], workers: int,
@@ -85,7 +87,7 @@ def _run_local(function: Callable[..., Row], jobs: Sequence[tuple[Any, ...]], wo
 
 
 def _run_ray(function: Callable[..., Row], jobs: Sequence[tuple[Any, ...]], workers: int, address: str,
-             memory_limit_mb: int, progress: Progress | None) -> list[Row]:
+             task_memory_mb: int, progress: Progress | None) -> list[Row]:
     try:
         import ray
     except ImportError:
@@ -97,9 +99,10 @@ def _run_ray(function: Callable[..., Row], jobs: Sequence[tuple[Any, ...]], work
         else:
             ray.init(address=address, log_to_driver=False)
     try:
-        # One CPU and the job's memory limit reserved per task; no retries, since a failing capture is a
+        # One CPU and the job's resident memory reserved per task; no retries, since a failing capture is a
         # row, not a lost task.
-        task = ray.remote(num_cpus=1, memory=max(memory_limit_mb, 1) * 2**20, max_retries=0)(function)
+        options = {"memory": task_memory_mb * 2**20} if task_memory_mb > 0 else {}
+        task = ray.remote(num_cpus=1, max_retries=0, **options)(function)
         refs = [task.remote(*job, active=None) for job in jobs]
         index = {ref: i for i, ref in enumerate(refs)}
         results: dict[int, Row] = {}
