@@ -70,6 +70,13 @@ class IKConfig:
     """Scene geoms within this distance of the region of interest are avoided, m."""
     solver: str = "daqp"
     """QP solver used through qpsolvers."""
+    gravity_cost: float = 0.5
+    """Weight of the task that keeps each arm joint's gravity load below ``gravity_free_share`` of its effort
+    limit (0 turns it off): the arm's null space (elbow, base) is used to unload weak wrist joints."""
+    gravity_free_share: float = 0.6
+    """Share of a joint's effort limit that gravity may take before that task pulls, 1."""
+    gravity_iterations: int = 15
+    """Differential-IK steps spent unloading the arm after a target is reached."""
 
 
 @dataclass(frozen=True)
@@ -82,6 +89,62 @@ class IKResult:
     """(N,) distance from grasp site to target, m."""
     orientation_error: FloatArray
     """(N,) angle between grasp site and target orientations, rad."""
+
+
+class GravityLoadTask(mink.Task):
+    """Keeps arm joints' gravity loads below a share of their effort limits.
+
+    The error of joint j is the part of its gravity load tau_j / limit_j beyond +-``free_share`` (zero below,
+    so a robot whose arm is strong enough for its weight is not affected); its Jacobian is a forward
+    difference of ``mj_rne`` over the arm joints (mink has no gravity task, and MuJoCo's ``mjd_inverseFD``
+    would difference every joint of the scene too), projected onto the null space of ``frame_task`` over
+    the ``planning`` dofs: to first order the task only moves the arm in ways that keep the grasp frame where
+    it is, so it never pulls the hand off its target (a plain weighted task would). With gravity
+    compensation the load is ``qfrc_bias * body_gravcomp`` as in ``feasibility.gravity_overload``.
+    """
+
+    def __init__(
+        self, model: mujoco.MjModel, frame_task: mink.FrameTask, planning: IntArray, dofs: IntArray, qpos: IntArray,
+        limits: FloatArray, compensated: bool, free_share: float, cost: float, step: float = 1e-5,
+    ) -> None:
+        super().__init__(cost=np.full(len(dofs), cost), gain=1.0)
+        self.model, self.dofs, self.qpos = model, np.asarray(dofs), np.asarray(qpos)
+        self.scale = 1.0 / np.asarray(limits, dtype=np.float64)
+        if compensated:
+            self.scale = self.scale * model.body_gravcomp[model.dof_bodyid[self.dofs]]
+        self.free_share, self.step = free_share, step
+        self.frame_task, self.planning = frame_task, np.asarray(planning)
+        self.data = mujoco.MjData(model)
+
+    def _load(self, qpos: FloatArray) -> FloatArray:
+        data = self.data
+        data.qpos[:] = qpos
+        mujoco.mj_kinematics(self.model, data)
+        mujoco.mj_comPos(self.model, data)
+        mujoco.mj_rne(self.model, data, 0, data.qfrc_bias)  # zero velocity: the gravity load
+        return data.qfrc_bias[self.dofs] * self.scale
+
+    def compute_error(self, configuration: mink.Configuration) -> FloatArray:
+        load = self._load(configuration.q)
+        return np.sign(load) * np.maximum(np.abs(load) - self.free_share, 0.0)
+
+    def compute_jacobian(self, configuration: mink.Configuration) -> FloatArray:
+        jacobian = np.zeros((len(self.dofs), self.model.nv))
+        q = configuration.q.copy()
+        load = self._load(q)
+        active = np.abs(load) > self.free_share
+        if not active.any():
+            return jacobian
+        for dof, adr in zip(self.dofs, self.qpos):
+            q[adr] += self.step
+            jacobian[:, dof] = (self._load(q) - load) / self.step
+            q[adr] -= self.step
+        jacobian[~active] = 0.0
+        frame = self.frame_task.compute_jacobian(configuration)[:, self.planning]
+        null = np.eye(len(self.planning)) - np.linalg.pinv(frame, rcond=1e-4) @ frame
+        projected = np.zeros_like(jacobian)
+        projected[:, self.planning] = jacobian[:, self.planning] @ null
+        return projected
 
 
 def _dofs(model: mujoco.MjModel, joints: IntArray) -> list[int]:
@@ -128,6 +191,13 @@ class WholeBodyIK:
         posture_cost[self.indices.dof[: self.n_base]] = config.posture_cost_base
         posture_cost[self.indices.dof[self.n_base :]] = config.posture_cost_arm
         self.posture_task = mink.PostureTask(model, cost=posture_cost)
+        self.tasks: list[mink.Task] = [self.frame_task, self.posture_task]
+        if config.gravity_cost > 0.0:
+            arm = slice(self.n_base, None)
+            self.tasks.append(GravityLoadTask(
+                model, self.frame_task, self.indices.dof, self.indices.dof[arm], self.indices.qpos[arm], robot.effort_max[self.n_base :],
+                robot.gravity_compensation, config.gravity_free_share, config.gravity_cost,
+            ))
         velocities = {ROBOT_PREFIX + name: float(v) for name, v in zip(robot.joint_names, robot.v_max)}
         position_limit = mink.ConfigurationLimit(model, min_distance_from_limits=config.limit_margin)
         # Only the planning joints are limited: a frozen scene joint may be set past its range (a twin's
@@ -208,47 +278,66 @@ class WholeBodyIK:
         part_state: float,
         fingers: float,
         max_iterations: int | None = None,
+        unload: bool = False,
     ) -> tuple[FloatArray, float, float]:
-        """Move the grasp site onto one target from a seed configuration.
+        """Move the grasp site onto one target from a seed configuration. With ``unload``, where that leaves an
+        arm joint holding more than ``gravity_free_share`` of its effort against gravity, then move the arm
+        through its null space to unload it (kept only if the target is still reached within the tolerances):
+        ``whole_body`` asks for it when the plain solutions overload a joint.
 
         Returns:
             (nq,) planning-joint positions, position error (m), orientation error (rad). Not raising: the
             caller decides what residual is acceptable.
         """
         cfg = self.config
-        configuration = self.configuration
-        configuration.update(self.full_q(q_seed, part_state, fingers))
+        self.configuration.update(self.full_q(q_seed, part_state, fingers))
         self.posture_task.set_target(self.full_q(q_posture, part_state, fingers))
-        target = mink.SE3.from_matrix(np.asarray(T_world_grasp, dtype=np.float64))
-        self.frame_task.set_target(target)
-        tasks = [self.frame_task, self.posture_task]
-        position_error = orientation_error = np.inf
+        self.frame_task.set_target(mink.SE3.from_matrix(np.asarray(T_world_grasp, dtype=np.float64)))
+        iterations = cfg.max_iterations if max_iterations is None else max_iterations
+        position_error, orientation_error = self._iterate([self.frame_task, self.posture_task], iterations)
+        q = self.configuration.q[self.indices.qpos].copy()
+        gravity = self.tasks[2:]
+        if not unload or not gravity or not self._reached(position_error, orientation_error):
+            return q, position_error, orientation_error
+        excess = float(np.abs(gravity[0].compute_error(self.configuration)).max())
+        if excess == 0.0:
+            return q, position_error, orientation_error
+        self._iterate(self.tasks, cfg.gravity_iterations, gravity[0])
+        # The null-space moves are first-order: the hand drifts by millimetres, taken back from the unloaded arm.
+        self.posture_task.set_target(self.configuration.q.copy())
+        e_p, e_r = self._iterate([self.frame_task, self.posture_task], cfg.gravity_iterations)
+        if self._reached(e_p, e_r) and float(np.abs(gravity[0].compute_error(self.configuration)).max()) < excess:
+            return self.configuration.q[self.indices.qpos].copy(), e_p, e_r
+        return q, position_error, orientation_error
+
+    def _reached(self, position_error: float, orientation_error: float) -> bool:
+        return position_error < self.config.position_tolerance and orientation_error < self.config.orientation_tolerance
+
+    def _iterate(self, tasks: list[mink.Task], iterations: int, unload: mink.Task | None = None) -> tuple[float, float]:
+        """Differential-IK steps on ``self.configuration`` until the frame target is reached (and, with
+        ``unload``, that task's error is zero) or progress stalls; returns the final frame errors."""
+        cfg = self.config
+        configuration = self.configuration
         history: list[float] = []
-        for _ in range(cfg.max_iterations if max_iterations is None else max_iterations):
+        for _ in range(iterations):
             error = self.frame_task.compute_error(configuration)
             position_error, orientation_error = float(np.linalg.norm(error[:3])), float(np.linalg.norm(error[3:]))
-            if position_error < cfg.position_tolerance and orientation_error < cfg.orientation_tolerance:
+            remaining = 0.0 if unload is None else float(np.abs(unload.compute_error(configuration)).max())
+            if self._reached(position_error, orientation_error) and remaining == 0.0:
                 break
-            history.append(position_error + 0.1 * orientation_error)
+            history.append(position_error + 0.1 * orientation_error + remaining)
             if len(history) > cfg.stall_iterations and history[-1] > (1.0 - cfg.stall_fraction) * history[-1 - cfg.stall_iterations]:
                 break  # stalled: a limit (collision, joint range) holds the frame off its target
             try:
                 velocity = mink.solve_ik(
-                    configuration,
-                    tasks,
-                    cfg.step_time,
-                    cfg.solver,
-                    damping=cfg.damping,
-                    limits=self.limits,
+                    configuration, tasks, cfg.step_time, cfg.solver, damping=cfg.damping, limits=self.limits,
                     constraints=self.constraints,
                 )
             except mink.NoSolutionFound as exc:
                 raise PlanningError(f"whole-body IK: the QP has no solution ({exc}); the robot may start in collision") from None
             configuration.integrate_inplace(velocity, cfg.step_time)
-        else:
-            error = self.frame_task.compute_error(configuration)
-            position_error, orientation_error = float(np.linalg.norm(error[:3])), float(np.linalg.norm(error[3:]))
-        return configuration.q[self.indices.qpos].copy(), position_error, orientation_error
+        error = self.frame_task.compute_error(configuration)
+        return float(np.linalg.norm(error[:3])), float(np.linalg.norm(error[3:]))
 
     def track(
         self,
@@ -257,6 +346,7 @@ class WholeBodyIK:
         q_start: npt.ArrayLike,
         q_posture: npt.ArrayLike,
         fingers: float,
+        unload: bool = False,
     ) -> IKResult:
         """Follow a path of targets, each solved from the previous solution.
 
@@ -269,6 +359,7 @@ class WholeBodyIK:
             q_start: (nq,) seed of the first target.
             q_posture: (N, nq) posture reference per target (its base joints are used).
             fingers: finger joint position held throughout, m or rad.
+            unload: unload the arm against gravity at each target (see :meth:`solve`).
         """
         T_world_grasp = np.asarray(T_world_grasp, dtype=np.float64)
         states = np.asarray(part_states, dtype=np.float64)
@@ -277,7 +368,7 @@ class WholeBodyIK:
         out, pos_err, rot_err = [], [], []
         for T, state, posture in zip(T_world_grasp, states, q_posture):
             reference = np.concatenate([posture[: self.n_base], q[self.n_base :]])
-            q, e_p, e_r = self.solve(T, q, reference, float(state), fingers)
+            q, e_p, e_r = self.solve(T, q, reference, float(state), fingers, unload=unload)
             out.append(q)
             pos_err.append(e_p)
             rot_err.append(e_r)

@@ -82,3 +82,31 @@ def test_fetch_holds_home_and_tracks_a_step(fetch, model) -> None:
     for _ in range(round(1.5 / model.opt.timestep)):
         mujoco.mj_step(model, data)
     np.testing.assert_allclose(data.qpos[indices.gripper_qpos], fetch.gripper.closed, atol=2e-3)
+
+
+def test_fetch_ik_unloads_the_wrist_through_the_null_space(fetch, tmp_path) -> None:
+    from test_plan_scenes import PRISMATIC_CASE, write_gt_scene
+
+    from funrec_robot.ik import IKConfig, WholeBodyIK
+    from funrec_robot.scene import part_joint
+
+    model = build_mujoco_model(fetch, write_gt_scene(PRISMATIC_CASE, tmp_path) / "scene.xml")
+    config = IKConfig(gravity_free_share=0.4)
+    ik = WholeBodyIK(fetch, model, part_joint(model, "part_0"), np.zeros((1, 3)), [], config)
+    gravity = ik.tasks[2]
+    # Elbow up, wrist straight: the 4 kg fingers load the wrist flex joint with about 55 % of its limit.
+    q = fetch.q_home.copy()
+    q[fetch.joint_names.index("robot0:wrist_flex_joint")] = 0.0
+    T = ik.grasp_pose(q, 0.0, fetch.gripper.open)
+    loaded = float(np.abs(gravity._load(ik.full_q(q, 0.0, fetch.gripper.open))).max())
+    assert loaded > ik.config.gravity_free_share
+    q_kept, e_p, e_r = ik.solve(T, q, q, 0.0, fetch.gripper.open)
+    np.testing.assert_allclose(q_kept, q, atol=1e-9)  # already on target: without unloading nothing moves
+    q_free, e_p, e_r = ik.solve(T, q, q, 0.0, fetch.gripper.open, unload=True)
+    # The hand stays on its target within the IK's own tolerances (1 mm, 0.01 rad) ...
+    assert e_p < ik.config.position_tolerance and e_r < ik.config.orientation_tolerance
+    np.testing.assert_allclose(ik.grasp_pose(q_free, 0.0, fetch.gripper.open)[:3, 3], T[:3, 3], atol=ik.config.position_tolerance)
+    # ... while the worst arm joint's gravity share drops by at least 0.02 (half a N m at the wrist; the hinge
+    # only pulls above 40 % here, so a drop is all it can promise).
+    unloaded = float(np.abs(gravity._load(ik.full_q(q_free, 0.0, fetch.gripper.open))).max())
+    assert unloaded < loaded - 0.02, (loaded, unloaded)
