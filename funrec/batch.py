@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from funrec.errors import FunrecError
-from funrec.scheduler import Progress, run_funrec_child, run_jobs
+from funrec.scheduler import Progress, last_log_line, run_funrec_child, run_jobs
 
 log = logging.getLogger(__name__)
 
@@ -136,15 +136,6 @@ def _part_count(twin_dir: Path) -> int | None:
         return None
 
 
-def _last_line(path: Path) -> str:
-    """The log's last non-blank line (the error of a failed reconstruct), at most 300 characters."""
-    try:
-        text = path.read_text(errors="replace").rstrip()
-    except OSError:
-        return ""
-    return text.rsplit("\n", 1)[-1].strip()[:300]
-
-
 def _evaluate(row: CaptureResult, twin_dir: Path, capture: Path) -> CaptureResult:
     import dataclasses
 
@@ -195,7 +186,7 @@ def run_capture(capture: str | Path, out_dir: str | Path, config: BatchConfig = 
     if run.timed_out:
         status, parts, error = "timeout", None, f"timeout after {config.timeout_s:g} s"
     elif run.returncode != 0 or not twin_is_complete(twin):
-        status, parts, error = "failed", None, f"exit code {run.returncode}: {_last_line(log_path)}"
+        status, parts, error = "failed", None, f"exit code {run.returncode}: {last_log_line(log_path)}"
     else:
         status, parts, error = "ok", _part_count(twin), None
     row = CaptureResult(capture.name, status, parts, run.seconds, run.peak_mb, error, run.cpu_s)

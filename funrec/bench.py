@@ -36,7 +36,7 @@ from funrec.errors import FunrecError
 from funrec.evaluate import EvalConfig, evaluate_twin, failed_evaluation
 from funrec.fragment_metrics import FragmentScore, score_twin_fragments
 from funrec.launcher import LimitedRun
-from funrec.scheduler import Progress, run_funrec_child, run_jobs
+from funrec.scheduler import Progress, last_log_line, run_funrec_child, run_jobs
 
 LOGGER = logging.getLogger(__name__)
 
@@ -108,14 +108,6 @@ def _method_command(method: str, extra: tuple[str, ...], capture: str, twin: str
     return [sys.executable, "-c", _BASELINE_SNIPPET.format(function=function), capture, twin]
 
 
-def _last_line(log_path: Path) -> str:
-    try:
-        lines = [line.strip() for line in log_path.read_text(errors="replace").splitlines() if line.strip()]
-    except OSError:
-        return ""
-    return lines[-1][:300] if lines else ""
-
-
 def _run_sequence(
     label: str, method: str, extra: tuple[str, ...], capture: Path, out_dir: Path, config: BenchConfig,
     active: set[int] | None = None,
@@ -146,7 +138,7 @@ def _run_sequence(
     if child.timed_out:
         return failure("timeout", f"timeout after {config.timeout_s:g} s", frame_count, child)
     if child.returncode != 0:
-        return failure("failed", f"exit code {child.returncode}: {_last_line(log_path)}", frame_count, child)
+        return failure("failed", f"exit code {child.returncode}: {last_log_line(log_path)}", frame_count, child)
     try:
         evaluation = evaluate_twin(twin, gt_dir, config.evaluation)
     except Exception as exc:  # a bug in scoring one twin must not lose the other rows

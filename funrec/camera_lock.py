@@ -27,7 +27,7 @@ import numpy as np
 from funrec.articulation import PartEstimate
 from funrec.fragment_tracks import WindowTracks
 from funrec.geometry.joints import joint_transforms
-from funrec.geometry.transforms import invert_transform, transform_points
+from funrec.geometry.transforms import invert_transform
 from funrec.point_tracks import PointTracks
 from funrec.tracking import CameraTrajectory
 from funrec.typed import FloatArray
@@ -95,24 +95,24 @@ def lock_correction(
     """
     frames = part.frames
     T_world_partmoved = joint_transforms(part.joint_type, part.axis_world, part.pivot_world, part.states - part.states[0])
+    inverse = invert_transform(T_world_partmoved)
     moving = _moving(part.states, config.rest_fraction)
     world = _centre_travel(T_world_camera[frames[moving]])
-    relative = _centre_travel((np.linalg.inv(T_world_partmoved) @ T_world_camera[frames])[moving])
+    relative = _centre_travel((inverse @ T_world_camera[frames])[moving])
     locked = world >= config.min_camera_motion_m and relative <= config.still_fraction * world
     logger.info("%s part over frames %d-%d: camera travels %.3f m in the world, %.3f m relative to the part%s",
                 part.joint_type, frames[0], frames[-1], world, relative, ": camera locked onto it" if locked else "")
     if not locked:
         return None
     correction = np.tile(np.eye(4), (len(T_world_camera), 1, 1))
-    inverse = np.array([invert_transform(T) for T in T_world_partmoved])
     correction[frames] = inverse
     correction[frames[-1] + 1 :] = inverse[-1]
     return correction
 
 
 def _moved_tracks(tracks: PointTracks, correction: FloatArray) -> PointTracks:
-    """The tracks with frame i's world points moved by ``correction[i]``."""
-    p_world = np.stack([transform_points(T, p) for T, p in zip(correction, tracks.p_world, strict=True)])
+    """The tracks with frame i's world points moved by ``correction[i]`` ((F, N, 3), NaN where not visible)."""
+    p_world = np.einsum("fij,fnj->fni", correction[:, :3, :3], tracks.p_world) + correction[:, None, :3, 3]
     return dataclasses.replace(tracks, p_world=p_world)
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import importlib
 import sys
 import time
 from collections.abc import Callable
@@ -15,6 +16,15 @@ from pathlib import Path
 from typing import Any
 
 from funrec.cli_runner import progress_bar, run_command, stage_bars
+
+
+def _add_config_options(parser: argparse.ArgumentParser, selected: bool, module: str, config: str) -> None:
+    """Add a flag per field of the frozen config class ``module.config`` (help from its attribute
+    docstrings), importing the module only for the command being run: stage modules are slow to import."""
+    if selected:
+        from funrec.config import add_config_arguments
+
+        add_config_arguments(parser, getattr(importlib.import_module(module), config))
 
 
 def _print_summary(summary: Any) -> None:
@@ -161,11 +171,7 @@ def _add_export(sub: Any, selected: bool) -> None:
     )
     p.add_argument("twin", type=Path, help="twin folder (holds articulation.json and meshes/)")
     p.add_argument("--config", type=Path, help="JSON or YAML file of ExportConfig fields (unknown keys are errors)")
-    if selected:
-        from funrec.config import add_config_arguments
-        from funrec.export.simulation import ExportConfig
-
-        add_config_arguments(p, ExportConfig)
+    _add_config_options(p, selected, "funrec.export.simulation", "ExportConfig")
     p.set_defaults(handler=_cmd_export)
 
 
@@ -188,11 +194,7 @@ def _add_render(sub: Any, selected: bool) -> None:
     )
     p.add_argument("twin", type=Path, help="twin folder (holds twin.xml)")
     p.add_argument("-o", "--output", type=Path, help="image folder (default: TWIN/render)")
-    if selected:
-        from funrec.config import add_config_arguments
-        from funrec.render import RenderConfig
-
-        add_config_arguments(p, RenderConfig)
+    _add_config_options(p, selected, "funrec.render", "RenderConfig")
     p.set_defaults(handler=_cmd_render)
 
 
@@ -240,11 +242,7 @@ def _add_view(sub: Any, selected: bool) -> None:
     p.add_argument("twin", type=Path, help="twin folder (holds articulation.json and meshes/)")
     p.add_argument("--port", type=int, default=8080, help="port of the web viewer (default: 8080)")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default: 127.0.0.1; 0.0.0.0 for other machines)")
-    if selected:
-        from funrec.config import add_config_arguments
-        from funrec.view import ViewConfig
-
-        add_config_arguments(p, ViewConfig)
+    _add_config_options(p, selected, "funrec.view", "ViewConfig")
     p.set_defaults(handler=_cmd_view)
 
 
@@ -260,11 +258,7 @@ def _add_convert(sub: Any, selected: bool) -> None:
     )
     p.add_argument("source", type=Path, help="recording file or folder")
     p.add_argument("-o", "--output", type=Path, required=True, help="capture folder to write")
-    if selected:  # converter settings load only for the command being run
-        from funrec.config import add_config_arguments
-        from funrec.convert import ConvertConfig
-
-        add_config_arguments(p, ConvertConfig)
+    _add_config_options(p, selected, "funrec.convert", "ConvertConfig")
     p.set_defaults(handler=_cmd_convert)
 
 
@@ -291,11 +285,7 @@ def _add_batch(sub: Any, selected: bool) -> None:
     )
     p.add_argument("dataset", type=Path, help="folder of capture folders")
     p.add_argument("-o", "--output", type=Path, required=True, help="output folder")
-    if selected:
-        from funrec.batch import BatchConfig
-        from funrec.config import add_config_arguments
-
-        add_config_arguments(p, BatchConfig)
+    _add_config_options(p, selected, "funrec.batch", "BatchConfig")
     p.set_defaults(handler=_cmd_batch)
 
 
@@ -355,11 +345,7 @@ def _add_bench(sub: Any, selected: bool) -> None:
     p.add_argument("--suite-dir", type=Path, default=Path("bench_suite"), help="suite folder (default: bench_suite)")
     p.add_argument("-o", "--output", type=Path, default=Path("bench_report"), help="report folder (default: bench_report)")
     p.add_argument("--only", nargs="+", metavar="NAME", help="run only these sequences")
-    if selected:  # stage modules load only for the command being run
-        from funrec.bench import BenchConfig
-        from funrec.config import add_config_arguments
-
-        add_config_arguments(p, BenchConfig)
+    _add_config_options(p, selected, "funrec.bench", "BenchConfig")
     p.set_defaults(handler=_cmd_bench)
 
 
@@ -376,11 +362,7 @@ def _add_reconstruct(sub: Any, selected: bool) -> None:
     p.add_argument("-o", "--output", type=Path, required=True, help="twin folder to write")
     p.add_argument("--overwrite", action="store_true", help="replace an existing twin folder")
     p.add_argument("--config", type=Path, help="JSON or YAML file of ReconstructConfig fields (unknown keys are errors)")
-    if selected:  # stage modules load only for the command being run
-        from funrec.config import add_config_arguments
-        from funrec.pipeline import ReconstructConfig
-
-        add_config_arguments(p, ReconstructConfig)
+    _add_config_options(p, selected, "funrec.pipeline", "ReconstructConfig")
     p.set_defaults(handler=_cmd_reconstruct)
 
 

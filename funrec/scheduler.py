@@ -36,6 +36,15 @@ def run_funrec_child(command: list[str], log_path: Path, timeout_s: float, memor
     return run_limited(command, log_path, timeout_s, memory_limit_mb, env, active)
 
 
+def last_log_line(log_path: Path) -> str:
+    """The last non-blank line of a job's log (the error of a failed child), at most 300 characters."""
+    try:
+        lines = [line.strip() for line in log_path.read_text(errors="replace").splitlines() if line.strip()]
+    except OSError:
+        return ""
+    return lines[-1][:300] if lines else ""
+
+
 def run_jobs(function: Callable[..., Row], jobs: Sequence[tuple[Any, ...]], workers: int, ray: str | None = None,
              task_memory_mb: int = 0, progress: Progress | None = None) -> list[Row]:
     """Results of ``function(*job)`` for every job, in job order.
@@ -123,4 +132,4 @@ def _run_ray(function: Callable[..., Row], jobs: Sequence[tuple[Any, ...]], work
             ray.shutdown()
 
 
-__all__ = ["Progress", "run_funrec_child", "run_jobs"]
+__all__ = ["Progress", "last_log_line", "run_funrec_child", "run_jobs"]

@@ -52,7 +52,7 @@ from funrec_robot.task import (
     resolve_target,
 )
 from funrec_robot.task_sources import load_task, locate_scene
-from funrec_robot.trajopt import PlacementConfig, PlacementProblem, place_base
+from funrec_robot.trajopt import BasePlacement, PlacementConfig, PlacementProblem, place_base
 from funrec_robot.whole_body import whole_body_configurations
 
 log = logging.getLogger(__name__)
@@ -362,24 +362,32 @@ def plan_interaction(
         )
     errors: list[tuple[int, PlanningError]] = []
     solution = None
-    pending = [(bases, rank) for bases, rank in attempts if rank < len(candidates)]
+    # (base stops, grasp rank, unload the arm, base placement to reuse)
+    pending: list[tuple[int, int, bool, BasePlacement | None]] = [
+        (bases, rank, False, None) for bases, rank in attempts if rank < len(candidates)
+    ]
     postures = list(robot.q_postures)
     while pending and time.perf_counter() - started < config.time_budget:
-        bases, rank = pending.pop(0)
+        bases, rank, unload, placement = pending.pop(0)
         grasp = candidates[rank]
-        problem = _placement_problem(robot, model, joint, geometry, grasp.frames, states, bases, config)
+        if placement is None:
+            problem = _placement_problem(robot, model, joint, geometry, grasp.frames, states, bases, config)
+            try:
+                placement = place_base(problem, config.placement)
+            except PlanningError as exc:
+                errors.append((0, exc))
+                continue
         try:
-            placement = place_base(problem, config.placement)
-        except PlanningError as exc:
-            errors.append((0, exc))
-            continue
-        try:
-            solution = whole_body_configurations(robot, model, joint, task, grasp, states, placement, target_state, geometry.fingertip_depth, config)
+            solution = whole_body_configurations(robot, model, joint, task, grasp, states, placement, target_state,
+                                                 geometry.fingertip_depth, config, unload)
         except GravityOverload as exc:
             errors.append((1, exc))
             if postures:  # the robot's next home posture may hold the gripper with less load on the wrist
                 robot = replace(robot, q_home=postures.pop(0))
-                pending.insert(0, (bases, rank))
+                pending.insert(0, (bases, rank, False, None))
+                continue
+            if not unload and config.ik.gravity_cost > 0.0:  # no posture left: unload the arm through its null space
+                pending.insert(0, (bases, rank, True, placement))
                 continue
             # A wrist too weak to hold the gripper level: try the grasps that point it down most first.
             down = {r: float(candidates[r].frames[0, 2, 2]) for r in range(len(candidates))}

@@ -52,8 +52,14 @@ def whole_body_configurations(
     target_state: float,
     fingertip_depth: float,
     config: PlanConfig,
+    unload: bool = False,
 ) -> dict:
-    """Whole-body IK for approach, grasp, handle path and retreat from a base placement.
+    """Whole-body IK for approach, grasp, handle path and retreat from a base placement; with ``unload``, the
+    arm's gravity load is lowered through its null space at every IK waypoint (IKConfig.gravity_cost).
+
+    Raises:
+        GravityOverload: a joint must hold more than PlanConfig.gravity_effort_share of its effort limit.
+        PlanningError: an IK target is missed or the approach runs into the scene.
 
     Returns a dict: grasp, flip, path (N, 4, 4 grasp frames used), states (N,), configs {approach:
     [q_start, (via,) q_pre, q_grasp], path: (N, nq), retreat}, tracked (IKResult), placement.
@@ -71,58 +77,50 @@ def whole_body_configurations(
     q_start = posture[0].copy()
     opening, holding = grasp.opening, grasp.holding
 
-    # First as the IK finds it; when that overloads a joint against gravity, and the planner has no other home
-    # posture of the robot's left to try (it tries them in order, the last is q_home now), again with the arm
-    # unloaded through its null space at every waypoint (IKConfig.gravity_cost), which moves the whole approach.
-    last = not robot.q_postures or np.array_equal(robot.q_home, robot.q_postures[-1])
-    planned = states
-    for unload in (False, True) if last and config.ik.gravity_cost > 0.0 else (False,):
-        best = None
-        for flip in (False, True):
-            path = frames @ FLIP if flip else frames
-            T_pre = offset_along_approach(path[0], config.pregrasp_distance)
-            q_pre, e_pos, e_rot = ik.solve(T_pre, q_start, posture[0], start_state, opening, unload=unload)
-            score = e_pos + 0.1 * e_rot + 0.01 * float(np.linalg.norm(q_pre - q_start))
-            if best is None or score < best[0]:
-                best = (score, flip, path, q_pre, e_pos, e_rot)
-        assert best is not None
-        _, flip, path, q_pre, e_pos, e_rot = best
-        _require(e_pos, e_rot, config, "pre-grasp pose", start_state, task)
-        q_grasp, e_pos, e_rot = ik.solve(path[0], q_pre, posture[0], start_state, opening, unload=unload)
-        _require(e_pos, e_rot, config, "grasp pose", start_state, task)
+    best = None
+    for flip in (False, True):
+        path = frames @ FLIP if flip else frames
+        T_pre = offset_along_approach(path[0], config.pregrasp_distance)
+        q_pre, e_pos, e_rot = ik.solve(T_pre, q_start, posture[0], start_state, opening, unload=unload)
+        score = e_pos + 0.1 * e_rot + 0.01 * float(np.linalg.norm(q_pre - q_start))
+        if best is None or score < best[0]:
+            best = (score, flip, path, q_pre, e_pos, e_rot)
+    assert best is not None
+    _, flip, path, q_pre, e_pos, e_rot = best
+    _require(e_pos, e_rot, config, "pre-grasp pose", start_state, task)
+    q_grasp, e_pos, e_rot = ik.solve(path[0], q_pre, posture[0], start_state, opening, unload=unload)
+    _require(e_pos, e_rot, config, "grasp pose", start_state, task)
 
-        # Up to the pre-grasp pose nothing of the scene may be touched, the handle included (a swing through it
-        # pushes the part before the grasp); only the last, slow move along the approach reaches it.
-        allowed: set[int] = set()
-        scene = np.flatnonzero(~np.isin(model.geom_bodyid, ik.indices.bodies))
-        floor = set(floor_geoms(model, scene).tolist())
-        approach = [q_start, q_pre, q_grasp]
-        hit = first_collision(model, ik, _ruckig_samples(robot, q_start, q_pre, config), start_state, opening, allowed, floor)
-        if hit is not None:
-            T_via = offset_along_approach(path[0], config.via_distance)
-            q_via, e_pos, e_rot = ik.solve(T_via, q_start, posture[0], start_state, opening)
-            _require(e_pos, e_rot, config, "approach via pose", start_state, task)
-            approach = [q_start, q_via, q_pre, q_grasp]
-            for q0, q1 in ((q_start, q_via), (q_via, q_pre)):
-                hit = first_collision(model, ik, _ruckig_samples(robot, q0, q1, config), start_state, opening, allowed, floor)
-                if hit is not None:
-                    raise PlanningError(f"approach of part '{task.part}': {hit[0]} runs into {hit[1]} (also through a via pose)")
+    # Up to the pre-grasp pose nothing of the scene may be touched, the handle included (a swing through it
+    # pushes the part before the grasp); only the last, slow move along the approach reaches it.
+    allowed: set[int] = set()
+    scene = np.flatnonzero(~np.isin(model.geom_bodyid, ik.indices.bodies))
+    floor = set(floor_geoms(model, scene).tolist())
+    approach = [q_start, q_pre, q_grasp]
+    hit = first_collision(model, ik, _ruckig_samples(robot, q_start, q_pre, config), start_state, opening, allowed, floor)
+    if hit is not None:
+        T_via = offset_along_approach(path[0], config.via_distance)
+        q_via, e_pos, e_rot = ik.solve(T_via, q_start, posture[0], start_state, opening)
+        _require(e_pos, e_rot, config, "approach via pose", start_state, task)
+        approach = [q_start, q_via, q_pre, q_grasp]
+        for q0, q1 in ((q_start, q_via), (q_via, q_pre)):
+            hit = first_collision(model, ik, _ruckig_samples(robot, q0, q1, config), start_state, opening, allowed, floor)
+            if hit is not None:
+                raise PlanningError(f"approach of part '{task.part}': {hit[0]} runs into {hit[1]} (also through a via pose)")
 
-        tracked = ik.track(path[1:], planned[1:], q_grasp, posture[1:], holding, unload)
-        worst = int(np.argmax(tracked.position_error / config.track_position_tolerance + tracked.orientation_error / config.track_orientation_tolerance))
-        _require(tracked.position_error[worst], tracked.orientation_error[worst], config, "handle path", planned[1 + worst], task)
-        q_path = np.vstack([q_grasp, tracked.q])
-        states, path, q_path = _refine_path(ik, task, planned, path, q_path, depth, tilt, flip, holding, config)
-        overload = gravity_overload(
-            robot, model, ik, np.vstack([q_grasp, q_path]), np.r_[start_state, states], holding, config.gravity_effort_share
+    tracked = ik.track(path[1:], states[1:], q_grasp, posture[1:], holding, unload)
+    worst = int(np.argmax(tracked.position_error / config.track_position_tolerance + tracked.orientation_error / config.track_orientation_tolerance))
+    _require(tracked.position_error[worst], tracked.orientation_error[worst], config, "handle path", states[1 + worst], task)
+    q_path = np.vstack([q_grasp, tracked.q])
+    states, path, q_path = _refine_path(ik, task, states, path, q_path, depth, tilt, flip, holding, config)
+    overload = gravity_overload(
+        robot, model, ik, np.vstack([q_grasp, q_path]), np.r_[start_state, states], holding, config.gravity_effort_share
+    )
+    if overload is not None:
+        raise GravityOverload(
+            f"part '{task.part}': at the planned grasp {overload[0]} must hold {overload[1]:.1f} against gravity, "
+            f"more than {config.gravity_effort_share:.0%} of its effort limit {overload[2]:.1f}"
         )
-        if overload is None:
-            break
-        if unload or not last or not config.ik.gravity_cost:
-            raise GravityOverload(
-                f"part '{task.part}': at the planned grasp {overload[0]} must hold {overload[1]:.1f} against gravity, "
-                f"more than {config.gravity_effort_share:.0%} of its effort limit {overload[2]:.1f}"
-            )
     # The retreat only has to take the fingers off the handle: the IK's best effort is kept when it leaves
     # the handle ``min_retreat_clearance`` beyond the fingertips.
     released = release_command(robot, holding, config.grasp)
