@@ -2,8 +2,9 @@
 
 plan.json (``"format": "funrec-plan/1"``), all in the scene's world frame, SI units:
 
-- ``joint_names``: actuated planning joints (base, then arm); ``gripper``: joints, open and closed commands
-  and ``grasp``, the command while holding the handle.
+- ``joint_names``: actuated planning joints (base, then arm); ``gripper``: joints, open and closed commands,
+  ``grasp``, the command while holding the handle, and ``release_from_grip`` (optional, default false): when
+  true the commands from the release segment on are relative to the grip, see :func:`release_offset`.
 - ``t`` (T,), ``q`` and ``qd`` (T, n): time stamps, positions and velocities at a fixed period;
   ``gripper_command`` (T,): the gripper actuator's command (or finger position without one).
 - ``segments``: ``[{"label", "start", "end", "t_start", "t_end"}]`` sample index ranges (end inclusive);
@@ -103,6 +104,10 @@ class Plan:
     """(B, 3) planned base stops: x, y (m), yaw (rad)."""
     provenance: dict[str, Any] = field(default_factory=dict)
     """Files and hashes, target, settings, timings."""
+    release_from_grip: bool = False
+    """The handle's thickness was unknown when planning: an executor adds to every gripper command from the
+    release segment on the difference between where the fingers stopped on the handle (measured when the
+    release starts) and ``grasp_command`` (see :func:`release_offset`)."""
 
     def segment(self, label: str) -> Segment:
         """The first segment with this label."""
@@ -114,6 +119,17 @@ class Plan:
     @property
     def duration(self) -> float:
         return float(self.t[-1])
+
+
+def release_offset(plan: Plan, measured_grip: float) -> float:
+    """What an executor adds to the plan's gripper commands from the start of the release segment on.
+
+    A gripper closed on a handle of unknown thickness stops where the handle is, not at the planned command;
+    a release planned as "a few millimetres looser than the grasp command" would then still press on the
+    handle. With ``plan.release_from_grip`` the release is taken relative to ``measured_grip``, the gripper
+    position (in command units) when the release starts; otherwise the commands stand (offset 0).
+    """
+    return float(measured_grip - plan.grasp_command) if plan.release_from_grip else 0.0
 
 
 def sha256_file(path: str | Path) -> str:
@@ -140,6 +156,7 @@ def plan_to_json(plan: Plan) -> dict[str, Any]:
             "open": plan.gripper_open,
             "closed": plan.gripper_closed,
             "grasp": plan.grasp_command,
+            "release_from_grip": plan.release_from_grip,
         },
         "t": _round(plan.t, 6),
         "q": _round(plan.q),
@@ -252,6 +269,7 @@ def plan_from_json(data: Any, path: str | Path = "<plan>") -> Plan:
             grasp_free_axis=int(task["grasp_free_axis"]),
             base_poses=_array(path, data, "base_poses", (-1, 3)),
             provenance=dict(data.get("provenance", {})),
+            release_from_grip=bool(gripper.get("release_from_grip", False)),
         )
     except KeyError as exc:
         raise FormatError(path, f"missing field {exc}") from None
@@ -263,4 +281,15 @@ def plan_from_json(data: Any, path: str | Path = "<plan>") -> Plan:
     return plan
 
 
-__all__ = ["PLAN_FORMAT", "SEGMENT_LABELS", "Plan", "Segment", "plan_from_json", "plan_to_json", "read_plan", "sha256_file", "write_plan"]
+__all__ = [
+    "PLAN_FORMAT",
+    "SEGMENT_LABELS",
+    "Plan",
+    "Segment",
+    "plan_from_json",
+    "plan_to_json",
+    "read_plan",
+    "release_offset",
+    "sha256_file",
+    "write_plan",
+]

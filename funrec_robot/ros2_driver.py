@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from funrec.typed import FloatArray
-from funrec_robot.plan_file import Plan, plan_from_json
+from funrec_robot.plan_file import Plan, plan_from_json, release_offset
 from funrec_robot.protocol import ProtocolError
 
 
@@ -150,10 +150,24 @@ class Ros2Driver:
         for client, goal in pending:
             client.send_goal_async(goal).add_done_callback(lambda f: self._accepted(f, finished))
         if self._gripper is not None:
+            release_start = next((s.t_start for s in plan.segments if s.label == "release"), np.inf)
+            stopped_at = [plan.grasp_command]  # where the last gripper goal left the fingers (its result)
             for t, command in gripper_switches(plan):
-                timer_goal = self._msgs[1].Goal()
-                timer_goal.command.position, timer_goal.command.max_effort = command, self.config.max_effort
-                threading.Timer(t, self._gripper.send_goal_async, args=(timer_goal,)).start()
+                relative = t >= release_start
+                threading.Timer(t, self._send_gripper, args=(plan, command, relative, stopped_at)).start()
+
+    def _send_gripper(self, plan: Plan, command: float, relative: bool, stopped_at: list[float]) -> None:
+        """Send one GripperCommand goal; a release is offset by where the fingers stopped on the handle
+        (``release_offset``), read from the previous goal's result."""
+        goal = self._msgs[1].Goal()
+        goal.command.position = command + (release_offset(plan, stopped_at[0]) if relative else 0.0)
+        goal.command.max_effort = self.config.max_effort
+
+        def record(result_future: Any) -> None:
+            stopped_at[0] = float(result_future.result().result.position)
+
+        future = self._gripper.send_goal_async(goal)
+        future.add_done_callback(lambda f: f.result().get_result_async().add_done_callback(record))
 
     def _accepted(self, future: Any, finished: Any) -> None:
         handle = future.result()

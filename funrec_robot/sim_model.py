@@ -263,4 +263,9 @@ def reset_to_home(
     mujoco.mj_forward(model, data)
 
 
-__all__ = ["ROBOT_PREFIX", "RobotIndices", "build_mujoco_model", "build_mujoco_spec", "reset_to_home", "robot_indices"]
+def gripper_position(indices: RobotIndices, data: mujoco.MjData) -> float:
+    """Where the gripper is, in the units of its command: the length of its (position) actuator."""
+    return float(data.actuator_length[indices.gripper_actuators[0]])
+
+
+__all__ = ["ROBOT_PREFIX", "gripper_position", "RobotIndices", "build_mujoco_model", "build_mujoco_spec", "reset_to_home", "robot_indices"]

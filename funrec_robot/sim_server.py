@@ -23,10 +23,10 @@ import mujoco
 import numpy as np
 
 from funrec.errors import FunrecError
-from funrec_robot.plan_file import Plan, plan_from_json
+from funrec_robot.plan_file import Plan, plan_from_json, release_offset
 from funrec_robot.protocol import PROTOCOL, LimitMargins, LineReader, ProtocolError, encode, validate_plan
 from funrec_robot.robot import RobotDescription
-from funrec_robot.sim_model import build_mujoco_model, reset_to_home, robot_indices
+from funrec_robot.sim_model import build_mujoco_model, gripper_position, reset_to_home, robot_indices
 
 log = logging.getLogger(__name__)
 
@@ -145,6 +145,8 @@ class SimRobot:
         model, data, plan = self.model, self.data, self.plan
         assert plan is not None
         dt = model.opt.timestep
+        release_start = next((s.t_start for s in plan.segments if s.label == "release"), np.inf)
+        grip_offset: float | None = None
         started = time.monotonic()
         while not self._stop.is_set():
             wall = (time.monotonic() - started) * self.config.real_time_factor
@@ -157,7 +159,9 @@ class SimRobot:
                 while self.plan_time < wall and self.plan_time <= plan.duration:
                     t = self.plan_time
                     data.ctrl[self.indices.actuators] = [np.interp(t, plan.t, plan.q[:, j]) for j in range(plan.q.shape[1])]
-                    data.ctrl[self.indices.gripper_actuators] = np.interp(t, plan.t, plan.gripper_command)
+                    if t >= release_start and grip_offset is None:
+                        grip_offset = release_offset(plan, gripper_position(self.indices, data))
+                    data.ctrl[self.indices.gripper_actuators] = np.interp(t, plan.t, plan.gripper_command) + (grip_offset or 0.0)
                     mujoco.mj_step(model, data)
                     self.plan_time += dt
                 if self.plan_time > plan.duration:
