@@ -141,6 +141,9 @@ class PlanConfig:
     falling_retreat_scale: float = 0.2
     """Speed of the retreat from a part let go to fall open (a drop-down door beyond the arm's reach), as a
     fraction of the usual: it rests on a finger until the hand has slid off the bar along it."""
+    fall_sweep_margin: float = float(np.deg2rad(15.0))
+    """The base keeps clear of a part let go to fall over this much beyond the state it is expected to come to
+    rest at (a twin's range is the demonstrated one; the real stop may lie further), rad."""
     fall_rest_force: float = 25.0
     """Such a part is let go no further than where its weight presses on the finger it rests on with this
     force, N: the hand then slides off the bar against as much friction again (mu ~ 1), well below the
@@ -158,6 +161,7 @@ def _placement_problem(
     states: FloatArray,
     bases: int,
     config: PlanConfig,
+    falls_to: float | None = None,
 ) -> PlacementProblem:
     wrist = frames[:, :3, 3] - frames[:, :3, 2] * geometry.wrist_to_grasp
     stretch = np.minimum((np.arange(len(states)) * bases) // len(states), bases - 1)
@@ -168,7 +172,13 @@ def _placement_problem(
     sweeps = []
     for b in range(bases):
         mine = states[(stretch == b) | (stretch == b + 1)]
-        sweeps.append(part_sweep_footprint(model, joint, mine[:: max(1, len(mine) // 12)].tolist() + [mine[-1]], z_band))
+        sampled = mine[:: max(1, len(mine) // 12)].tolist() + [mine[-1]]
+        if falls_to is not None and b == bases - 1:
+            # A part let go to fall sweeps on to where it comes to rest, which a twin knows only from the
+            # demonstration: the last stop also keeps clear of ``fall_sweep_margin`` beyond.
+            direction = 1.0 if falls_to >= states[-1] else -1.0
+            sampled += np.linspace(states[-1], falls_to + direction * config.fall_sweep_margin, 8).tolist()
+        sweeps.append(part_sweep_footprint(model, joint, sampled, z_band))
     free = tuple(motion in robot.base_motions for motion in ("x", "y", "yaw"))
     return PlacementProblem(
         wrist_world=wrist,
@@ -371,7 +381,7 @@ def plan_interaction(
         bases, rank, unload, placement = pending.pop(0)
         grasp = candidates[rank]
         if placement is None:
-            problem = _placement_problem(robot, model, joint, geometry, grasp.frames, states, bases, config)
+            problem = _placement_problem(robot, model, joint, geometry, grasp.frames, states, bases, config, final_state)
             try:
                 placement = place_base(problem, config.placement)
             except PlanningError as exc:
@@ -511,6 +521,7 @@ def plan_interaction(
         grasp_free_axis=grasp_free_axis(task),
         base_poses=placement.poses,
         provenance=provenance,
+        release_from_grip=task.handle_width is None,
     )
 
 
