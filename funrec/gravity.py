@@ -30,10 +30,14 @@ class GravityConfig:
     The prior is good to a few degrees when the person turns (the x axes then span the horizontal
     plane), but when they face one way it is the mean -y axis, pitched by how far down they look:
     measured 38-46 deg on bench kitchens, so the floor test below leans on camera height too."""
-    camera_height_m: tuple[float, float] = (0.6, 2.4)
+    camera_height_m: tuple[float, float] = (1.0, 2.4)
     """The floor lies this far below the median camera centre, metres: a head-mounted or hand-held
-    camera of a standing or crouching person. It separates the floor from a counter top (about 0.5 m
-    below the head) and from walls, which the camera is not 'above'."""
+    camera of a standing or briefly crouching person (median heights 1.24-1.70 m on the bench). It
+    separates the floor from a counter top (0.3-0.8 m below the head on the bench; with 0.6 here a
+    0.9 m counter was taken for the floor) and from walls, which the camera is not 'above'."""
+    assumed_camera_height_m: float = 1.55
+    """Without a visible floor, the floor is put this far below camera 0 (a standing adult's eye height),
+    metres, with a warning: the robot stands on it, so the camera's own height (0) would float it."""
     min_plane_fraction: float = 0.04
     """A horizontal plane needs at least this fraction of the thinned points to count."""
     max_planes: int = 6
@@ -50,7 +54,8 @@ class GravityAlignment:
 
     T_aligned_world: FloatArray
     """(4, 4) maps pipeline-world coordinates to the aligned frame: z up, x along camera 0's
-    horizontal x axis, origin on the floor below camera 0 (at camera 0 without a floor)."""
+    horizontal x axis, origin on the floor below camera 0 (``assumed_camera_height_m`` below it
+    without a floor)."""
     source: str
     """"floor_plane" when a floor was found, else "camera_axes"."""
     floor_inliers: int
@@ -132,8 +137,9 @@ def estimate_gravity(
         origin = p_camera0 - up * (up @ p_camera0 + d)
         source = "floor_plane"
     else:
-        origin, inliers, source = p_camera0, 0, "camera_axes"
-        log.info("no floor plane found; gravity from the camera axes")
+        origin, inliers, source = p_camera0 - config.assumed_camera_height_m * up, 0, "camera_axes"
+        log.warning("no floor plane found: gravity from the camera axes, and the floor assumed %.2f m below "
+                    "camera 0 (a robot planned in this twin stands on that guess)", config.assumed_camera_height_m)
     x_axis = T_world_camera[0, :3, 0] - up * (up @ T_world_camera[0, :3, 0])
     if np.linalg.norm(x_axis) < 1e-6:  # camera 0 looks straight down its own x axis: pick any
         x_axis = np.cross(up, [0.0, 1.0, 0.0]) if abs(up[1]) < 0.9 else np.cross(up, [1.0, 0.0, 0.0])

@@ -63,3 +63,19 @@ def test_without_floor_uses_camera_axes() -> None:
     up = alignment.T_aligned_world[:3, :3] @ [0.0, 0.0, 1.0]
     # Roll noise of 2 degrees per camera averages down over 20 cameras spread in yaw.
     assert np.degrees(np.arccos(np.clip(up[2], -1, 1))) < 3.0
+    # The robot stands on the floor: without one it is put a standing adult's eye height below camera 0.
+    p_camera0 = (alignment.T_aligned_world @ T_scene_camera[0])[:3, 3]
+    assert p_camera0[2] == pytest.approx(1.55, abs=0.05)
+
+
+def test_counter_top_is_not_the_floor() -> None:
+    """A wall cabinet seen from 1.6 m with the counter below it but no floor in view: the counter top (0.7 m
+    below the cameras) was taken for the floor, and robots planned on such twins stood 0.9 m in the air."""
+    rng = np.random.default_rng(3)
+    T_scene_camera = _head_cameras(rng, 10.0)
+    room = _room(rng)
+    no_floor = room[room[:, 2] > 0.05]
+    alignment = estimate_gravity(no_floor, T_scene_camera)
+    assert alignment.source == "camera_axes"
+    p_camera0 = (alignment.T_aligned_world @ T_scene_camera[0])[:3, 3]
+    assert p_camera0[2] > 1.2

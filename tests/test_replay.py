@@ -70,3 +70,27 @@ def test_replay_plans_and_checks_the_demonstration_in_the_true_scene(twin, tmp_p
     assert report["all_passed"], step["failure"]
     require_passing_record(step["plan_file"])  # the record binds the plan's bytes: send would accept it
     assert json.loads((tmp_path / "replay.json").read_text())["passed"] == 1
+
+
+def test_a_twin_whose_floor_is_not_the_scenes_is_refused(twin, tmp_path) -> None:
+    """A twin that took a counter top for its floor would have the robot stand in the air of the true scene:
+    its plans are refused there (before the fix such a plan passed its check with the base 0.9 m up)."""
+    from types import SimpleNamespace
+
+    from funrec.camera_poses import read_camera_poses, write_camera_poses
+    from funrec_robot.check import FLOOR_HEIGHT_TOLERANCE, T_scene_plan_from_gt
+
+    twin_dir, gt = twin
+    plan = SimpleNamespace(provenance={"task_source": f"twin:{twin_dir}"})
+    assert np.allclose(T_scene_plan_from_gt(plan, gt), np.eye(4), atol=1e-9)
+    lifted = tmp_path / "lifted"
+    shutil.copytree(twin_dir, lifted)
+    poses = read_camera_poses(lifted / "camera_poses.txt")
+    T_world_camera = poses.T_world_camera.copy()
+    T_world_camera[:, 2, 3] -= 0.9  # the twin's floor 0.9 m above the true one: the cameras 0.9 m lower in it
+    write_camera_poses(lifted / "camera_poses.txt", T_world_camera, poses.frames)
+    with pytest.raises(PlanningError, match=r"the twin's floor lies \+0\.90 m off the scene's"):
+        T_scene_plan_from_gt(SimpleNamespace(provenance={"task_source": f"twin:{lifted}"}), gt)
+    T_world_camera[:, 2, 3] += 0.9 - 0.8 * FLOOR_HEIGHT_TOLERANCE
+    write_camera_poses(lifted / "camera_poses.txt", T_world_camera, poses.frames)
+    T_scene_plan_from_gt(SimpleNamespace(provenance={"task_source": f"twin:{lifted}"}), gt)
