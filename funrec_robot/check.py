@@ -233,7 +233,7 @@ class _Execution:
         self.hand_body = int(model.site_bodyid[self.indices.grasp_site])
         self.equalities = np.arange(model.neq - 2, model.neq)
         self.servos = ServoModel.of(model, self.indices.actuators)
-        self.admittance = Admittance(model, self.indices.grasp_site, self.indices.dof, len(robot.base_joints), config.admittance)
+        self.admittance = Admittance(model, self.indices.grasp_site, self.indices.dof, len(robot.base_joints), config.admittance, self.servos)
         robot_geoms = bodies_geoms(model, self.indices.bodies)
         self.robot_geoms = set(robot_geoms.tolist())
         self._gripper_array = bodies_geoms(model, subtree_bodies(model, self.hand_body))
@@ -487,7 +487,7 @@ class _Execution:
             state = float(np.interp(t, plan.t, plan.part_state))
             # Anti-windup: while a servo is saturated, yielding further would only load it more.
             integrate = attached and cfg.compliant and not np.any(over_effort > 0.0)
-            q_offset = self.admittance.update(data, wrench, dt, integrate, self._path_tangent(state))
+            q_offset = self.admittance.update(data, q_ref, wrench, dt, integrate, self._path_tangent(state))
             ctrl = self.servos.command(q_ref + q_offset, qd_ref)
             data.ctrl[self.indices.actuators] = ctrl
             data.ctrl[self.indices.gripper_actuators] = command
