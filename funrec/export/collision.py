@@ -17,8 +17,8 @@ log = logging.getLogger(__name__)
 
 DECOMPOSITION_METHODS = ("coacd", "grid", "hull")
 """How a mesh is cut into convex pieces: "coacd" (approximate convex decomposition, seconds per
-object), "grid" (convex hull of the triangles in each cell of a regular grid; fast and tight on
-room-scale scans that are open surfaces) or "hull" (one convex hull of the whole mesh)."""
+object), "grid" (convex hull of the triangles in each cell of a regular grid and orientation bin;
+fast and tight on room-scale scans that are open surfaces) or "hull" (one convex hull of the whole mesh)."""
 
 COACD_MCTS_NODES = 10
 """CoACD tree-search children per node; the CoACD default (20) doubles the run time on two CPU
@@ -207,16 +207,36 @@ def _coacd_point_sets(mesh: trimesh.Trimesh, config: CollisionConfig, name: str)
     return [np.asarray(vertices, dtype=np.float64) for vertices, _ in pieces]
 
 
+GRID_ORIENTATION_BINS = 4
+"""Vertical faces in a grid cell are split into this many bins of their horizontal facing (mod 180 deg),
+and horizontal faces (normal within 45 deg of z) form one more bin, each with its own hull."""
+
+
+def _orientation_bins(vertices: FloatArray, faces: FloatArray) -> FloatArray:
+    """(F,) orientation bin of each triangle: 0 for horizontal ones (floors, worktops), 1.. for vertical
+    ones by the direction they face, modulo a half turn. The hull of one cell's floor and cabinet front
+    together is a wedge standing out in front of the cabinet (up to a cell deep) where a robot's base and
+    fingers must go; split by orientation each hull stays in its surface."""
+    a, b, c = vertices[faces[:, 0]], vertices[faces[:, 1]], vertices[faces[:, 2]]
+    normals = np.cross(b - a, c - a)
+    length = np.linalg.norm(normals, axis=1)
+    horizontal = np.abs(normals[:, 2]) >= np.sqrt(0.5) * length
+    facing = np.mod(np.arctan2(normals[:, 1], normals[:, 0]), np.pi)
+    vertical_bin = 1 + np.minimum((facing / np.pi * GRID_ORIENTATION_BINS).astype(np.int64), GRID_ORIENTATION_BINS - 1)
+    return np.where(horizontal, 0, vertical_bin)
+
+
 def _grid_point_sets(mesh: trimesh.Trimesh, cell_m: float) -> list[FloatArray]:
-    """Vertices of the triangles whose centres fall in each occupied grid cell."""
+    """Vertices of the triangles whose centres fall in each occupied grid cell, one set per orientation bin
+    (``_orientation_bins``; the mesh is gravity-aligned, z up)."""
     faces = np.asarray(mesh.faces, dtype=np.int64)
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     # Centres summed corner by corner: mesh.triangles_center would cache (F, 3, 3) corners on
     # the mesh (30 MB for a 400k-triangle room) for the rest of the export.
     centres = (vertices[faces[:, 0]] + vertices[faces[:, 1]] + vertices[faces[:, 2]]) / 3.0
-    keys = np.floor(centres / cell_m).astype(np.int64)
+    keys = np.column_stack([np.floor(centres / cell_m).astype(np.int64), _orientation_bins(vertices, faces)])
     keys -= keys.min(axis=0)
-    # One integer per cell in lexicographic (x, y, z) order: np.unique on it is several times
+    # One integer per cell in lexicographic (x, y, z, bin) order: np.unique on it is several times
     # faster than np.unique(keys, axis=0), which sorts structured rows.
     _, cell = np.unique(np.ravel_multi_index(keys.T, tuple(keys.max(axis=0) + 1)), return_inverse=True)
     # Each (cell, vertex) pair once, sorted by cell then vertex: the vertices of every cell.
