@@ -33,6 +33,9 @@ class GraspConfig:
     """Smallest such gap accepted when the handle stands too close to the front for the wanted one, m."""
     unknown_surface_offset: float = 0.02
     """Handle standoff from the front assumed when the task does not know it, m."""
+    unknown_handle_width: float = 0.035
+    """Thickness across the pads assumed for opening the gripper when the task does not know the handle's
+    (a twin): the thickest bar or knob expected; the fingers then close until they stop on it, m."""
     pad_margin: float = 0.003
     """The contact point stays this far inside the finger pads' depth range, m."""
     grip_margin: float = 0.015
@@ -98,11 +101,12 @@ def opening_commands(
 ) -> tuple[float, float]:
     """Gripper commands before closing and while holding: each finger (a slide whose command is its
     position) half the handle's extent across the pads plus a margin from the middle (a tilted grasp sees
-    part of the handle's depth), then half its thickness minus the squeeze; fully open and fully closed when
-    the thickness is unknown."""
-    if task.handle_width is None:
-        return robot.gripper.open, robot.gripper.closed
+    part of the handle's depth), then half its thickness minus the squeeze. When the thickness is unknown the
+    fingers open as for ``unknown_handle_width`` (not fully: open fingers sweep into the front and plinth
+    below a low handle) and close fully, stopping on the handle."""
     low, high = sorted((robot.gripper.closed, robot.gripper.open))
+    if task.handle_width is None:
+        return float(np.clip(config.unknown_handle_width / 2 + config.grip_margin, low, high)), robot.gripper.closed
     depth = task.handle_width if task.handle_depth is None else task.handle_depth
     across = task.handle_width * np.cos(tilt) + depth * abs(np.sin(tilt))
     opening = float(np.clip(across / 2 + config.grip_margin, low, high))

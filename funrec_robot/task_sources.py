@@ -20,6 +20,7 @@ from funrec.ground_truth import GroundTruth, read_ground_truth
 from funrec.twin_format import ArticulatedPart, read_articulation
 from funrec.typed import FloatArray
 from funrec_robot.errors import format_names
+from funrec_robot.handle_geometry import front_standoff
 from funrec_robot.scene import part_front, part_joint
 from funrec_robot.task import ArticulationTask
 
@@ -158,6 +159,19 @@ MESH_FRONT_BAND_M = 0.01
 """Without affordances, part points within this distance of the part's front-most point form its front, m."""
 
 
+def _part_points(root: Path, joint: ArticulatedPart) -> FloatArray:
+    """(N, 3) vertices of a twin part's mesh (canonical state, twin world); empty without a mesh."""
+    import trimesh
+
+    if joint.mesh is None:
+        return np.zeros((0, 3))
+    mesh_path = root / joint.mesh
+    try:
+        return np.asarray(trimesh.load(mesh_path, process=False).vertices, dtype=np.float64).reshape(-1, 3)
+    except (OSError, ValueError) as exc:
+        raise FormatError(mesh_path, f"cannot read the part mesh: {exc}") from None
+
+
 def _mesh_grasp(root: Path, joint: ArticulatedPart) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Contact point, approach and handle axis guessed from a part's mesh when the twin has no affordance.
 
@@ -166,17 +180,12 @@ def _mesh_grasp(root: Path, joint: ArticulatedPart) -> tuple[FloatArray, FloatAr
     farthest from the hinge, at the part's mid-height, with a handle along the hinge axis; a drawer in the
     middle of its front with a handle across the motion.
     """
-    import trimesh
-
     from funrec.camera_poses import read_camera_poses
 
     if joint.mesh is None:
         raise PlanningError(f"{root}: part '{joint.name}' has neither an affordance nor a mesh to grasp it by")
     mesh_path = root / joint.mesh
-    try:
-        p_world = np.asarray(trimesh.load(mesh_path, process=False).vertices, dtype=np.float64)
-    except (OSError, ValueError) as exc:
-        raise FormatError(mesh_path, f"cannot read the part mesh: {exc}") from None
+    p_world = _part_points(root, joint)
     if len(p_world) < 3:
         raise PlanningError(f"{mesh_path}: part '{joint.name}' has {len(p_world)} mesh points, too few to grasp it by")
     T_world_camera = read_camera_poses(root / "camera_poses.txt").T_world_camera
@@ -218,6 +227,7 @@ def task_from_twin(
     grasp frame closes its fingers across it) and the demonstrated holds. A twin without affordances.json,
     or whose affordances miss the part, falls back to a grasp guessed from the part's mesh
     (``_mesh_grasp``), logs a warning and says so in ``task.source`` (hence in the plan's provenance).
+    The handle's standoff from the part's front is measured on the part mesh (``front_standoff``).
 
     Args:
         twin_dir: twin folder (FORMATS.md section 2).
@@ -256,6 +266,9 @@ def task_from_twin(
         log.warning("part '%s': no affordance (%s); grasping it where its mesh suggests a handle", joint.name, why)
         p_contact, approach, handle_axis = _mesh_grasp(root, joint)
         source, files = f"twin:{root.resolve()}", (articulation_path,)
+    # The handle's standoff from the part's front, measured on the part mesh around a contact the hand made
+    # (None, and for a contact guessed on the front itself: the planner assumes one).
+    standoff = front_standoff(_part_points(root, joint), p_contact, approach) if affordance is not None else None
     T = np.eye(4) if T_scene_twin is None else np.asarray(T_scene_twin, dtype=np.float64)
     return ArticulationTask(
         part=joint.name,
@@ -267,6 +280,7 @@ def task_from_twin(
         p_world_contact=_transform_point(T, p_contact),
         approach_world=_transform_vector(T, approach),
         handle_axis_world=_transform_vector(T, handle_axis),
+        surface_offset=standoff,
         demo_times=demo_times,
         demo_states=demo_states,
         source=source,

@@ -49,3 +49,32 @@ def test_gripper_turns_edge_on_to_the_door_by_the_release_state() -> None:
     assert z @ (DOOR.pivot_world - _contact(falling)[-1]) > 0.0
     # Held to the end instead, the gripper faces the front within max_roll (45 deg) of level: not edge-on.
     assert abs(held[-1, :3, 2] @ normal) > 0.5
+
+
+def _door_front(rng: np.random.Generator, recess: bool) -> np.ndarray:
+    """Points of a door front in the plane y = 0 (the approach is +y, into the door), 0.6 x 0.8 m, 2 mm noise;
+    with ``recess`` its middle (beyond 8 cm of the handle) is a glass panel 1.5 cm deeper, larger than the
+    frame around the handle."""
+    p = np.column_stack([rng.uniform(-0.3, 0.3, 40000), np.zeros(40000), rng.uniform(-0.4, 0.4, 40000)])
+    if recess:
+        glass = np.hypot(p[:, 0], p[:, 2]) > 0.08
+        p[glass, 1] += 0.015
+    return p + rng.normal(0.0, 0.002, p.shape)
+
+
+def test_front_standoff_is_the_nearest_surface_around_the_handle() -> None:
+    """Measured on a twin's part mesh, the handle's standoff lets a low handle be grasped pitched. It must not
+    be overestimated (fingertips planned into the front): it is the near edge of a 5 mm bin, so it lies
+    within 5 mm below the truth; a deeper recessed panel filling most of the ring does not count."""
+    from funrec_robot.handle_geometry import front_standoff
+
+    rng = np.random.default_rng(0)
+    approach = np.array([0.0, 1.0, 0.0])
+    for standoff in (0.012, 0.031):
+        contact = np.array([0.02, -standoff, 0.05])
+        for recess in (False, True):
+            measured = front_standoff(_door_front(rng, recess), contact, approach)
+            assert measured is not None and standoff - 0.005 - 0.002 <= measured <= standoff
+    # A contact behind the front, or without points around it: no estimate.
+    assert front_standoff(_door_front(rng, False), np.array([0.0, 0.02, 0.0]), approach) is None
+    assert front_standoff(np.zeros((10, 3)), np.zeros(3), approach) is None
