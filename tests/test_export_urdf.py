@@ -374,17 +374,16 @@ def test_convex_pieces_are_thick_and_watertight() -> None:
 def test_grid_pieces_do_not_wedge_floor_and_front_together() -> None:
     """A cabinet front standing on the floor: one hull of the cell holding both filled the space in front of
     the cabinet (up to a cell deep and high), where a robot's base and fingers reach for a low drawer."""
-    floor = trimesh.creation.box(extents=(1.0, 1.0, 0.002))
-    floor.apply_translation((0.0, -0.5, -0.001))  # z <= 0, in front of the front (y < 0)
-    front = trimesh.creation.box(extents=(1.0, 0.002, 0.6))
-    front.apply_translation((0.0, 0.001, 0.3))  # y >= 0, from the floor up
+    # Open surfaces, as a TSDF scan's: the floor z = 0 in front of the front (y < 0), the front y = 0 above it.
+    floor = trimesh.Trimesh([[-0.5, -1, 0], [0.5, -1, 0], [0.5, 0, 0], [-0.5, 0, 0]], [[0, 1, 2], [0, 2, 3]])
+    front = trimesh.Trimesh([[-0.5, 0, 0], [0.5, 0, 0], [0.5, 0, 0.6], [-0.5, 0, 0.6]], [[0, 2, 1], [0, 3, 2]])
     room = trimesh.util.concatenate([floor, front])
     room = trimesh.Trimesh(*trimesh.remesh.subdivide_to_size(room.vertices, room.faces, 0.03))  # a scan's fine triangles
     shift = np.array([0.013, 0.12, 0.07])  # the corner inside grid cells, not on their boundaries
     room.apply_translation(shift)
     pieces = decompose(room, "grid", CollisionConfig(grid_cell_m=0.25), "room")
     # Points 3 cm in front of the front and 3 cm above the floor: inside no piece (each piece is padded to
-    # min_thickness_m = 1 cm, so its surface stays within 5 mm of the 2 mm slabs).
+    # min_thickness_m = 1 cm, so its surface stays within 5 mm of the surfaces).
     gap = np.column_stack([np.linspace(-0.45, 0.45, 10), np.full(10, -0.03), np.full(10, 0.03)]) + shift
     assert not any(piece.contains(gap).any() for piece in pieces)
 

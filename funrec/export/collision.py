@@ -17,7 +17,7 @@ log = logging.getLogger(__name__)
 
 DECOMPOSITION_METHODS = ("coacd", "grid", "hull")
 """How a mesh is cut into convex pieces: "coacd" (approximate convex decomposition, seconds per
-object), "grid" (convex hull of the triangles in each cell of a regular grid and orientation bin;
+object), "grid" (convex hull of the horizontal and of the other triangles in each cell of a regular grid;
 fast and tight on room-scale scans that are open surfaces) or "hull" (one convex hull of the whole mesh)."""
 
 COACD_MCTS_NODES = 10
@@ -207,28 +207,20 @@ def _coacd_point_sets(mesh: trimesh.Trimesh, config: CollisionConfig, name: str)
     return [np.asarray(vertices, dtype=np.float64) for vertices, _ in pieces]
 
 
-GRID_ORIENTATION_BINS = 4
-"""Vertical faces in a grid cell are split into this many bins of their horizontal facing (mod 180 deg),
-and horizontal faces (normal within 45 deg of z) form one more bin, each with its own hull."""
-
-
 def _orientation_bins(vertices: FloatArray, faces: FloatArray) -> FloatArray:
-    """(F,) orientation bin of each triangle: 0 for horizontal ones (floors, worktops), 1.. for vertical
-    ones by the direction they face, modulo a half turn. The hull of one cell's floor and cabinet front
-    together is a wedge standing out in front of the cabinet (up to a cell deep) where a robot's base and
-    fingers must go; split by orientation each hull stays in its surface."""
+    """(F,) 1 for horizontal triangles (normal within 45 deg of z: floors, worktops), 0 for the others. The hull
+    of one cell's floor and cabinet front together is a wedge standing out in front of the cabinet (up to a
+    cell deep) where a robot's base and fingers must go; split so, each hull stays in its surface. (Binning
+    vertical faces by facing as well, to split inner corners, tripled the pieces of a TSDF room: its
+    triangle normals are noisy.)"""
     a, b, c = vertices[faces[:, 0]], vertices[faces[:, 1]], vertices[faces[:, 2]]
     normals = np.cross(b - a, c - a)
-    length = np.linalg.norm(normals, axis=1)
-    horizontal = np.abs(normals[:, 2]) >= np.sqrt(0.5) * length
-    facing = np.mod(np.arctan2(normals[:, 1], normals[:, 0]), np.pi)
-    vertical_bin = 1 + np.minimum((facing / np.pi * GRID_ORIENTATION_BINS).astype(np.int64), GRID_ORIENTATION_BINS - 1)
-    return np.where(horizontal, 0, vertical_bin)
+    return (np.abs(normals[:, 2]) >= np.sqrt(0.5) * np.linalg.norm(normals, axis=1)).astype(np.int64)
 
 
 def _grid_point_sets(mesh: trimesh.Trimesh, cell_m: float) -> list[FloatArray]:
-    """Vertices of the triangles whose centres fall in each occupied grid cell, one set per orientation bin
-    (``_orientation_bins``; the mesh is gravity-aligned, z up)."""
+    """Vertices of the triangles whose centres fall in each occupied grid cell, horizontal and other
+    triangles apart (``_orientation_bins``; the mesh is gravity-aligned, z up)."""
     faces = np.asarray(mesh.faces, dtype=np.int64)
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     # Centres summed corner by corner: mesh.triangles_center would cache (F, 3, 3) corners on
