@@ -35,6 +35,10 @@ class GravityConfig:
     camera of a standing or briefly crouching person (median heights 1.24-1.70 m on the bench). It
     separates the floor from a counter top (0.3-0.8 m below the head on the bench; with 0.6 here a
     0.9 m counter was taken for the floor) and from walls, which the camera is not 'above'."""
+    worktop_height_m: float = 0.90
+    """Without a visible floor, a large horizontal plane 0.3 m to ``camera_height_m[0]`` below the cameras is
+    taken for a kitchen worktop at this height above the floor, metres (EN 1116 and US cabinets: 0.85-0.95 m);
+    the floor is put that far below it, with a warning."""
     assumed_camera_height_m: float = 1.55
     """Without a visible floor, the floor is put this far below camera 0 (a standing adult's eye height),
     metres, with a warning: the robot stands on it, so the camera's own height (0) would float it."""
@@ -57,9 +61,14 @@ class GravityAlignment:
     horizontal x axis, origin on the floor below camera 0 (``assumed_camera_height_m`` below it
     without a floor)."""
     source: str
-    """"floor_plane" when a floor was found, else "camera_axes"."""
+    """"floor_plane" when a floor was found, "worktop_plane" when only a worktop was (the floor is put
+    ``worktop_height_m`` below it), else "camera_axes"."""
     floor_inliers: int
     """Thinned static points on the floor plane (0 without a floor)."""
+
+
+WORKTOP_BELOW_CAMERA_M = 0.3
+"""A worktop lies at least this far below the median camera centre, metres."""
 
 
 def _camera_up_prior(T_world_camera: FloatArray) -> FloatArray:
@@ -79,19 +88,21 @@ def _camera_up_prior(T_world_camera: FloatArray) -> FloatArray:
 
 
 def _floor_plane(points_world: FloatArray, up_prior: FloatArray, config: GravityConfig,
-                 p_world_camera: FloatArray | None = None) -> tuple[FloatArray, float, int] | None:
-    """The lowest large plane roughly facing up with the cameras at head height above it:
-    (unit normal pointing up, offset d with n.p + d = 0, inliers)."""
+                 p_world_camera: FloatArray | None = None) -> tuple[tuple[FloatArray, float, int] | None, ...]:
+    """The lowest large plane roughly facing up with the cameras at head height above it, and the lowest
+    one at worktop height below them: each (unit normal pointing up, offset d with n.p + d = 0, inliers)
+    or None."""
     import open3d as o3d
 
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points_world))
     cloud = cloud.voxel_down_sample(config.voxel_m)
     total = len(cloud.points)
     if total < 100:
-        return None
+        return None, None
     o3d.utility.random.seed(config.seed)
     cos_tilt = np.cos(np.radians(config.max_floor_tilt_deg))
     best: tuple[FloatArray, float, int] | None = None
+    worktop: tuple[FloatArray, float, int] | None = None
     for _ in range(config.max_planes):
         if len(cloud.points) < 3 * int(config.min_plane_fraction * total) or len(cloud.points) < 50:
             break
@@ -103,12 +114,15 @@ def _floor_plane(points_world: FloatArray, up_prior: FloatArray, config: Gravity
             normal, d = -normal, -d
         height = None if p_world_camera is None else float(np.median(p_world_camera @ normal + d))
         at_head_height = height is None or config.camera_height_m[0] <= height <= config.camera_height_m[1]
-        if normal @ up_prior >= cos_tilt and at_head_height and len(inliers) >= config.min_plane_fraction * total:
-            # Height of the plane along up is -d; the floor is the lowest horizontal plane.
-            if best is None or -d < -best[1]:
-                best = (normal, d, len(inliers))
+        large = normal @ up_prior >= cos_tilt and len(inliers) >= config.min_plane_fraction * total
+        # Height of the plane along up is -d; the floor is the lowest horizontal plane.
+        if large and at_head_height and (best is None or -d < -best[1]):
+            best = (normal, d, len(inliers))
+        at_worktop_height = height is not None and WORKTOP_BELOW_CAMERA_M <= height < config.camera_height_m[0]
+        if large and at_worktop_height and (worktop is None or -d < -worktop[1]):
+            worktop = (normal, d, len(inliers))
         cloud = cloud.select_by_index(inliers, invert=True)
-    return best
+    return best, worktop
 
 
 def estimate_gravity(
@@ -130,12 +144,18 @@ def estimate_gravity(
     T_world_camera = np.asarray(T_world_camera, dtype=np.float64)
     up = _camera_up_prior(T_world_camera)
     finite = points_world[np.isfinite(points_world).all(axis=1)]
-    floor = _floor_plane(finite, up, config, T_world_camera[:, :3, 3]) if len(points_world) else None
+    floor, worktop = _floor_plane(finite, up, config, T_world_camera[:, :3, 3]) if len(points_world) else (None, None)
     p_camera0 = T_world_camera[0, :3, 3]
     if floor is not None:
         up, d, inliers = floor
         origin = p_camera0 - up * (up @ p_camera0 + d)
         source = "floor_plane"
+    elif worktop is not None:
+        up, d, inliers = worktop
+        origin = p_camera0 - up * (up @ p_camera0 + d + config.worktop_height_m)
+        source = "worktop_plane"
+        log.warning("no floor plane found: the floor is assumed %.2f m below the worktop-high plane seen "
+                    "(a robot planned in this twin stands on that guess)", config.worktop_height_m)
     else:
         origin, inliers, source = p_camera0 - config.assumed_camera_height_m * up, 0, "camera_axes"
         log.warning("no floor plane found: gravity from the camera axes, and the floor assumed %.2f m below "
