@@ -1,4 +1,4 @@
-"""How far a handle stands proud of its part's front, measured on a twin's part mesh.
+"""How far a handle stands proud of its part's front, and whether it is a knob, measured on a twin's part mesh.
 
 A twin's affordance gives the contact point and the approach but not the handle's standoff; the planner
 needs it to keep the fingertips clear of the front (and to know how far the grasp may pitch for a low
@@ -9,12 +9,20 @@ deeper than the frame the fingertips would meet).
 
 Measured on the 26 parts of the bench twins (session 4): within 4 mm of the true standoff wherever the
 contact point lies on the handle (bars 1.6-2.1 cm, knobs and thick bars 2.9-3.7 cm).
+
+The handle itself is what stands proud of that front near the contact: its extent along the handle axis
+the affordance gives tells a knob (1.7-3.2 cm on the bench twins) from a bar (14-40 cm); a knob is grasped
+with the fingers closing horizontally, which lets the grasp pitch far more for a low drawer.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import numpy.typing as npt
+
+from funrec.typed import FloatArray
 
 RING_M = (0.04, 0.15)
 """Inner and outer radius of the ring about the approach line whose points are the front, m: inside it lie
@@ -60,4 +68,60 @@ def front_standoff(p_part: npt.ArrayLike, p_contact: npt.ArrayLike, approach: np
     return standoff
 
 
-__all__ = ["front_standoff"]
+PROUD_M = 0.012
+"""A point belongs to the handle when it stands at least this far proud of the front, m (beyond the front's
+depth bin and the mesh's noise)."""
+HANDLE_WINDOW_M = (0.20, 0.05)
+"""Handle points lie within this distance of the contact along the handle axis and across it, m."""
+MIN_HANDLE_POINTS = 20
+"""Fewer handle points than this: the handle's shape is not told."""
+KNOB_MAX_LENGTH_M = 0.06
+"""A handle no longer than this along its axis is a knob, m."""
+
+
+@dataclass(frozen=True)
+class HandleShape:
+    """What the part mesh tells of the handle around a contact point."""
+
+    standoff: float | None
+    """Distance from the contact point to the front along the approach (``front_standoff``), m."""
+    length: float | None
+    """Extent of the handle's points along the handle axis, m; None if not told."""
+    p_centre: FloatArray | None
+    """(3,) centroid of the handle's points, moved along the approach to the contact's depth; None if not told."""
+
+    @property
+    def is_knob(self) -> bool:
+        return self.length is not None and self.length < KNOB_MAX_LENGTH_M
+
+
+def measure_handle(
+    p_part: npt.ArrayLike, p_contact: npt.ArrayLike, approach: npt.ArrayLike, handle_axis: npt.ArrayLike
+) -> HandleShape:
+    """The standoff, length and centre of the handle at a contact point (see the module's docstring).
+
+    Args:
+        p_part: (N, 3) points of the part at the state of the contact point.
+        p_contact: (3,) contact point.
+        approach: (3,) unit approach direction (into the part).
+        handle_axis: (3,) unit handle axis, perpendicular to the approach.
+    """
+    p_part = np.asarray(p_part, dtype=np.float64)
+    p_contact = np.asarray(p_contact, dtype=np.float64)
+    approach = np.asarray(approach, dtype=np.float64)
+    handle_axis = np.asarray(handle_axis, dtype=np.float64)
+    standoff = front_standoff(p_part, p_contact, approach)
+    if standoff is None:
+        return HandleShape(None, None, None)
+    relative = p_part - p_contact
+    depth, along, across = relative @ approach, relative @ handle_axis, relative @ np.cross(approach, handle_axis)
+    handle = (depth <= standoff - PROUD_M) & (depth >= -DEPTH_WINDOW_M) & (np.abs(along) <= HANDLE_WINDOW_M[0])
+    handle &= np.abs(across) <= HANDLE_WINDOW_M[1]
+    if int(handle.sum()) < MIN_HANDLE_POINTS:
+        return HandleShape(standoff, None, None)
+    centre = p_part[handle].mean(axis=0)
+    centre -= approach * float((centre - p_contact) @ approach)
+    return HandleShape(standoff, float(np.ptp(along[handle])), centre)
+
+
+__all__ = ["KNOB_MAX_LENGTH_M", "HandleShape", "front_standoff", "measure_handle"]

@@ -20,7 +20,7 @@ from funrec.ground_truth import GroundTruth, read_ground_truth
 from funrec.twin_format import ArticulatedPart, read_articulation
 from funrec.typed import FloatArray
 from funrec_robot.errors import format_names
-from funrec_robot.handle_geometry import front_standoff
+from funrec_robot.handle_geometry import measure_handle
 from funrec_robot.scene import part_front, part_joint
 from funrec_robot.task import ArticulationTask
 
@@ -227,7 +227,8 @@ def task_from_twin(
     grasp frame closes its fingers across it) and the demonstrated holds. A twin without affordances.json,
     or whose affordances miss the part, falls back to a grasp guessed from the part's mesh
     (``_mesh_grasp``), logs a warning and says so in ``task.source`` (hence in the plan's provenance).
-    The handle's standoff from the part's front is measured on the part mesh (``front_standoff``).
+    The handle's standoff from the part's front is measured on the part mesh, and a handle as short as a
+    knob is taken for one (no handle axis: the fingers close horizontally; ``measure_handle``).
 
     Args:
         twin_dir: twin folder (FORMATS.md section 2).
@@ -266,9 +267,14 @@ def task_from_twin(
         log.warning("part '%s': no affordance (%s); grasping it where its mesh suggests a handle", joint.name, why)
         p_contact, approach, handle_axis = _mesh_grasp(root, joint)
         source, files = f"twin:{root.resolve()}", (articulation_path,)
-    # The handle's standoff from the part's front, measured on the part mesh around a contact the hand made
-    # (None, and for a contact guessed on the front itself: the planner assumes one).
-    standoff = front_standoff(_part_points(root, joint), p_contact, approach) if affordance is not None else None
+    # The handle's standoff from the part's front and its shape, measured on the part mesh around a contact
+    # the hand made (not around one guessed on the front itself: the planner then assumes a standoff).
+    standoff = None
+    if affordance is not None:
+        shape = measure_handle(_part_points(root, joint), p_contact, approach, handle_axis)
+        standoff = shape.standoff
+        if shape.is_knob and shape.p_centre is not None:
+            p_contact, handle_axis = shape.p_centre, None
     T = np.eye(4) if T_scene_twin is None else np.asarray(T_scene_twin, dtype=np.float64)
     return ArticulationTask(
         part=joint.name,
@@ -279,7 +285,7 @@ def task_from_twin(
         state_current=state_current,
         p_world_contact=_transform_point(T, p_contact),
         approach_world=_transform_vector(T, approach),
-        handle_axis_world=_transform_vector(T, handle_axis),
+        handle_axis_world=None if handle_axis is None else _transform_vector(T, handle_axis),
         surface_offset=standoff,
         demo_times=demo_times,
         demo_states=demo_states,

@@ -78,3 +78,24 @@ def test_front_standoff_is_the_nearest_surface_around_the_handle() -> None:
     # A contact behind the front, or without points around it: no estimate.
     assert front_standoff(_door_front(rng, False), np.array([0.0, 0.02, 0.0]), approach) is None
     assert front_standoff(np.zeros((10, 3)), np.zeros(3), approach) is None
+
+
+def test_measure_handle_tells_a_knob_from_a_bar_and_centres_a_knob() -> None:
+    """Knobs of the bench twins measure 1.7-3.2 cm along the affordance's handle axis, bars 14-40 cm; a knob is
+    grasped with the fingers closing horizontally (more pitch for low drawers), and its contact point is
+    moved to the knob's centre (the hand's contact is off by 1-2 cm)."""
+    from funrec_robot.handle_geometry import measure_handle
+
+    rng = np.random.default_rng(1)
+    approach, axis = np.array([0.0, 1.0, 0.0]), np.array([1.0, 0.0, 0.0])
+    front = _door_front(rng, False)
+    centre = np.array([0.1, -0.03, 0.2])  # a handle 3 cm proud of the front (y = 0)
+    knob = centre + rng.uniform(-0.015, 0.015, (400, 3)) * [1.0, 0.0, 1.0] + rng.normal(0.0, 0.002, (400, 3))
+    bar = centre + np.column_stack([rng.uniform(-0.15, 0.15, 2000), np.zeros(2000), rng.uniform(-0.005, 0.005, 2000)])
+    contact = centre + [0.012, 0.0, -0.01]
+    shape = measure_handle(np.vstack([front, knob]), contact, approach, axis)
+    assert shape.is_knob and shape.standoff is not None and 0.023 <= shape.standoff <= 0.03
+    # Centred to within 3 mm (uniform 3 cm knob, 400 points) and left at the contact's depth.
+    assert shape.p_centre is not None and np.linalg.norm(shape.p_centre - (centre + [0.0, contact[1] - centre[1], 0.0])) < 0.003
+    assert not measure_handle(np.vstack([front, bar]), contact, approach, axis).is_knob
+    assert measure_handle(front, contact, approach, axis).length is None  # no handle proud of the front
