@@ -105,6 +105,8 @@ class PlanConfig:
     """Largest acceleration of the handle along its path while actuating, m/s^2."""
     via_distance: float = 0.25
     """When the direct approach collides, the gripper first goes to this far out along the approach, m."""
+    via_position_tolerance: float = 0.03
+    """Largest IK residual accepted at the approach's via pose (free space), m."""
     retreat_step: float = 0.01
     """The retreat is solved in steps of this length along the approach, stopping where the IK cannot follow, m."""
     min_retreat_clearance: float = 0.01
