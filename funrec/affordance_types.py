@@ -74,6 +74,10 @@ class AffordanceConfig:
     search_radius_m: float = 0.2
     """Radius around the first estimate in which the front surface is fitted and the handle is
     searched: holds a door handle (14 cm) whole when the first estimate is off by 5 cm."""
+    handle_search_radius_m: float = 0.3
+    """Radius around the first estimate in which handle geometry is searched (the front plane is
+    fitted within ``search_radius_m``): holds a 30 cm drawer bar whole when the first estimate is
+    off by 10 cm along it; a handle reaching out of it counts as long (``max_handle_length_m``)."""
     front_cell_m: float = 0.005
     """Cell size of the front-layer test (as seen from the hand), metres."""
     front_depth_m: float = 0.015
@@ -83,11 +87,18 @@ class AffordanceConfig:
     """RANSAC inlier distance of the front plane: a few mm of fused-mesh noise."""
     plane_hypotheses: int = 200
     """RANSAC hypotheses for the front plane."""
+    front_min_width_m: float = 0.06
+    """A layer of points parallel to the RANSAC plane and in front of it (up to
+    ``handle_max_height_m``) is the part's front, rather than handle geometry, when it is this
+    wide across (5-95 % range along its narrow in-plane direction; bars and lips are 1-3 cm)
+    ..."""
+    front_min_area_m2: float = 0.01
+    """... and covers this area (cells of ``front_cell_m``; a 30 x 2 cm bar covers 0.006 m^2)."""
     max_handle_length_m: float = 0.35
     """A handle piece up to this long (along its principal direction) gives the contact at its
     centre: the first estimate's error runs mostly along the handle (2-4 cm on the synthetic
     bench), while its centre is where a hand or gripper holds it best. On a longer handle (an
-    oven bar, a fridge's long bar), or one that reaches out of ``search_radius_m``, the contact
+    oven bar, a fridge's long bar), or one that reaches out of ``handle_search_radius_m``, the contact
     is the point of the handle's axis level with the hand's far end, where the hand was."""
     handle_min_height_m: float = 0.008
     """Points standing this far out of the front plane are handle geometry (bars stand 3 cm out,

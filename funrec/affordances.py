@@ -124,8 +124,10 @@ def find_affordances(
        while it held it, so the surface around it is completed with depth from a few frames
        before the grasp or after the release (``observe_*``), inside the part's outline, and
        voted again. The contact is then snapped to the handle: the piece of geometry standing
-       out of the front plane nearest to the estimate, by squared distance per point (bar, knob,
-       grip lip).
+       out of the front plane (the front-most wide layer parallel to the dominant plane; a part
+       fused with a few wrong states holds a copy of its front behind it) within
+       ``handle_search_radius_m``, nearest to the estimate by squared distance per point (bar,
+       knob, grip lip).
     5. Grasp frame, demonstrated trajectory (states during each hold) and contact path (the
        contact point moved over the joint range), see the module docstring for conventions.
 
@@ -291,10 +293,15 @@ def _part_affordance(
     p_near = p_surface[np.linalg.norm(p_surface - c_first, axis=1) < config.search_radius_m]
     p_seen = observe(c_first, tuple(interactions))
     if len(p_seen) and len(p_near) >= 3:
-        p_local = np.concatenate([p_near, p_seen[inside_footprint(p_seen, p_near, c_first, p_hand - c_first, config, rng)]])
+        p_seen = p_seen[inside_footprint(p_seen, p_near, c_first, p_hand - c_first, config, rng)]
+        p_local = np.concatenate([p_near, p_seen])
         c_first = _vote_centre(p_local, _contact_votes(p_local, held, config), config)
     else:
-        p_local = p_near
+        p_seen = np.zeros((0, 3))
+    # The handle is searched farther out than the front is fitted: a 30 cm drawer bar reaches
+    # out of the search radius when the first estimate is 3 cm off along it.
+    radius = max(config.search_radius_m, config.handle_search_radius_m)
+    p_local = np.concatenate([p_surface[np.linalg.norm(p_surface - c_first, axis=1) < radius], p_seen])
     contact, T_world_grasp, handle_found = grasp_at_handle(part, p_local, c_first, p_hand, up, config, rng)
     region = np.flatnonzero(votes >= config.region_fraction * votes.max())
     region = region[np.argsort(-votes[region], kind="stable")[: config.region_max_points]]

@@ -21,6 +21,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from scipy.spatial.transform import Rotation
 
+from funrec.affordance_handle import front_plane, grasp_at_handle
 from funrec.affordance_metrics import evaluate_affordances, format_affordance_evaluation
 from funrec.affordances import (
     AFFORDANCES_FORMAT,
@@ -403,6 +404,98 @@ def test_metric_fails_every_part_of_an_unreadable_twin(tiny_capture: Path, tmp_p
     evaluation = evaluate_affordances(tmp_path / "nothing", tiny_capture / "gt")
     assert evaluation.failure is not None and evaluation.fraction_within_tolerance == 0.0
     assert all(p.failure for p in evaluation.parts)
+
+
+def _grid(x: tuple[float, float], y: tuple[float, float], z: float, spacing: float = 0.005) -> np.ndarray:
+    """(N, 3) points on the rectangle x by y at height z (the front's normal is +z)."""
+    u, v = np.meshgrid(np.arange(x[0], x[1], spacing), np.arange(y[0], y[1], spacing))
+    return np.stack([u.ravel(), v.ravel(), np.full(u.size, z)], axis=1)
+
+
+def _bar(length: float, height: float, radius: float = 0.0075, spacing: float = 0.003) -> np.ndarray:
+    """(N, 3) front half (the side facing +z) of a bar along x centred at (0, 0, height), and
+    its two posts down to the front at x = +-(length / 2 - 0.02)."""
+    x, angle = np.meshgrid(np.arange(-length / 2, length / 2, spacing), np.linspace(0.0, np.pi, 9))
+    bar = np.stack([x.ravel(), radius * np.cos(angle.ravel()), height + radius * np.sin(angle.ravel())], axis=1)
+    posts = [np.stack([np.full(8, sign * (length / 2 - 0.02)), np.zeros(8), np.linspace(0.0, height, 8)], axis=1) for sign in (1.0, -1.0)]
+    return np.concatenate([bar, *posts])
+
+
+DRAWER = make_part("part_0", "prismatic", [0.0, 0.0, 1.0], None, np.arange(2), np.array([0.0, 0.2]))
+"""A drawer pulled out along +z, the normal of the test fronts."""
+
+
+def test_handle_is_found_in_front_of_a_larger_copy_of_the_front_behind_it() -> None:
+    """A drawer fused with a few wrong states holds a second copy of its front 2.8 cm behind the
+    real one, offset downwards and larger than the front in view (multi_kitchen_01): the contact
+    must be on the bar standing 3.2 cm out of the real front, not on the real front (which stands
+    2.8 cm out of the copy and looks like a handle to the largest plane)."""
+    front = _grid((-0.4, 0.4), (-0.06, 0.06), 0.0)
+    copy_behind = _grid((-0.4, 0.4), (-0.2, 0.04), -0.028, spacing=0.004)
+    p = np.concatenate([front, copy_behind, _bar(0.3, 0.032)])
+    c_first = np.array([0.03, 0.0, 0.0])  # on the front, 3 cm along the bar from its centre
+    config = AffordanceConfig()
+    contact, T_world_grasp, found = grasp_at_handle(DRAWER, p, c_first, c_first + [0.0, 0.0, 0.08], np.array([0.0, 1.0, 0.0]), config, np.random.default_rng(0))
+    assert found
+    # 1 cm: the bar's visible half biases its point mean outwards by 2 r / pi = 4.8 mm at most;
+    # the front panel (the failure) is 3.2 cm behind the bar's centre.
+    np.testing.assert_allclose(contact, [0.0, 0.0, 0.032], atol=0.01)
+    np.testing.assert_allclose(T_world_grasp[:3, 2], [0.0, 0.0, -1.0], atol=0.02)  # approach into the front
+
+
+def test_a_drawer_bar_longer_than_the_front_search_gives_its_centre() -> None:
+    """A 34 cm bar with the first estimate 8 cm along it from its centre reaches out of the front
+    plane's search radius (20 cm) but not out of the handle search: its centre is the contact,
+    not the point level with the hand (pri_drawer_05: 3.4 cm off before)."""
+    p = np.concatenate([_grid((-0.45, 0.45), (-0.09, 0.09), 0.0), _bar(0.34, 0.032)])
+    c_first = np.array([0.08, 0.0, 0.0])
+    config = AffordanceConfig()
+    assert 0.17 + 0.08 > config.search_radius_m  # the bar's far end is out of the front search
+    contact, T_world_grasp, found = grasp_at_handle(DRAWER, p, c_first, c_first + [0.0, 0.0, 0.08], np.array([0.0, 1.0, 0.0]), config, np.random.default_rng(0))
+    assert found
+    # 1 cm, as above; the hand's position (the former answer) is 8 cm off along the bar.
+    np.testing.assert_allclose(contact, [0.0, 0.0, 0.032], atol=0.01)
+    assert abs(T_world_grasp[:3, 0] @ [1.0, 0.0, 0.0]) > 0.99  # x along the bar
+
+
+def test_a_bar_fused_at_two_heights_stays_one_handle() -> None:
+    """A bar fused from views with different state errors: two rails along x, 3 cm apart in
+    height and joined at their ends, make one piece whose points all lie 1.5 cm off its axis
+    (more than the link length); it is still the handle (multi_kitchen_01 lost it in half of
+    the RANSAC seeds before)."""
+    x = np.arange(-0.15, 0.15, 0.003)
+    rails = [np.stack([x, np.zeros_like(x), np.full_like(x, z)], axis=1) for z in (0.012, 0.042)]
+    z = np.arange(0.012, 0.042, 0.003)
+    rungs = [np.stack([np.full_like(z, end), np.zeros_like(z), z], axis=1) for end in (-0.15, 0.15)]
+    p = np.concatenate([_grid((-0.4, 0.4), (-0.1, 0.1), 0.0), *rails, *rungs])
+    c_first = np.array([0.02, 0.0, 0.0])
+    contact, _, found = grasp_at_handle(DRAWER, p, c_first, c_first + [0.0, 0.0, 0.08], np.array([0.0, 1.0, 0.0]), AffordanceConfig(), np.random.default_rng(0))
+    assert found
+    # 5 mm: the middle of the rails' extent is x = 0 and their mean height 2.7 cm, up to the
+    # 3 mm point spacing.
+    np.testing.assert_allclose(contact, [0.0, 0.0, 0.027], atol=0.005)
+
+
+def test_a_few_stray_points_past_a_handle_end_do_not_move_its_centre() -> None:
+    """A 20 cm lip 1.2 cm out of the front with four stray points fused in a row up to 3.2 cm
+    past one end, linked to it (pri_drawer_00): the contact stays at the lip's centre."""
+    lip = _grid((-0.1, 0.1), (-0.012, 0.012), 0.012, spacing=0.003)
+    stray = np.stack([[-0.108, -0.116, -0.124, -0.132], np.zeros(4), np.full(4, 0.010)], axis=1)
+    p = np.concatenate([_grid((-0.3, 0.3), (-0.1, 0.1), 0.0), lip, stray])
+    c_first = np.array([0.02, 0.0, 0.0])
+    contact, _, found = grasp_at_handle(DRAWER, p, c_first, c_first + [0.0, 0.0, 0.08], np.array([0.0, 1.0, 0.0]), AffordanceConfig(), np.random.default_rng(0))
+    assert found
+    # 5 mm: the 3 mm point spacing at the lip's ends; the ends at the extreme points would put
+    # it 1.6 cm off (half the strays' reach).
+    np.testing.assert_allclose(contact, [0.0, 0.0, 0.012], atol=0.005)
+
+
+def test_front_plane_is_not_moved_onto_a_bar() -> None:
+    """Layers in front of the largest plane are the front only when they are wide: a bar (2 cm
+    across) leaves the plane where it is."""
+    p = np.concatenate([_grid((-0.3, 0.3), (-0.1, 0.1), 0.0), _bar(0.3, 0.032)])
+    _, origin, normal, _ = front_plane(p, np.zeros(3), np.array([0.0, 0.0, 1.0]), AffordanceConfig(), np.random.default_rng(0))
+    assert abs(origin @ normal) < 0.003  # within the RANSAC tolerance (5 mm) of the front at z = 0
 
 
 @pytest.mark.slow
