@@ -43,7 +43,7 @@ def grasp_at_handle(
     # Handle points: all points standing out of the front within the (wider) handle search, not
     # only the front layer: a bar fused a little off in height (after-release views with a state
     # error) lies partly under itself, and that part links its pieces into one handle.
-    radius = max(config.search_radius_m, config.handle_search_radius_m)
+    radius = config.handle_radius_m
     nearby = p_local[np.linalg.norm(p_local - c_first, axis=1) < radius]
     height = (nearby - origin) @ normal
     candidate = (height > config.handle_min_height_m) & (height < config.handle_max_height_m)
@@ -110,7 +110,8 @@ def _front_most_layer(p: FloatArray, origin: FloatArray, normal: FloatArray, con
         return origin
     # Layer heights: local maxima of the count within +-tol, front-most first.
     levels = np.arange(config.handle_min_height_m, config.handle_max_height_m + tol, tol / 2)
-    count = np.searchsorted(np.sort(height[above]), levels + tol) - np.searchsorted(np.sort(height[above]), levels - tol)
+    ordered = np.sort(height[above])
+    count = np.searchsorted(ordered, levels + tol) - np.searchsorted(ordered, levels - tol)
     peaks = [i for i in range(len(levels)) if count[i] > 0 and count[i] >= count[max(i - 1, 0)] and count[i] >= count[min(i + 1, len(levels) - 1)]]
     e1 = np.cross(normal, np.eye(3)[int(np.argmin(np.abs(normal)))])
     e1 /= np.linalg.norm(e1)

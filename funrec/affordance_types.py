@@ -146,6 +146,11 @@ class AffordanceConfig:
         if not 0.0 < self.vote_top_fraction <= 1.0 or not 0.0 < self.region_fraction <= 1.0 or self.path_samples < 2:
             raise ValueError(f"AffordanceConfig needs fractions in (0, 1] and path_samples >= 2, got {self}")
 
+    @property
+    def handle_radius_m(self) -> float:
+        """Radius around the first estimate that holds both the front fit and the handle search."""
+        return max(self.search_radius_m, self.handle_search_radius_m)
+
 
 @dataclass(frozen=True)
 class Interaction:

@@ -300,8 +300,7 @@ def _part_affordance(
         p_seen = np.zeros((0, 3))
     # The handle is searched farther out than the front is fitted: a 30 cm drawer bar reaches
     # out of the search radius when the first estimate is 3 cm off along it.
-    radius = max(config.search_radius_m, config.handle_search_radius_m)
-    p_local = np.concatenate([p_surface[np.linalg.norm(p_surface - c_first, axis=1) < radius], p_seen])
+    p_local = np.concatenate([p_surface[np.linalg.norm(p_surface - c_first, axis=1) < config.handle_radius_m], p_seen])
     contact, T_world_grasp, handle_found = grasp_at_handle(part, p_local, c_first, p_hand, up, config, rng)
     region = np.flatnonzero(votes >= config.region_fraction * votes.max())
     region = region[np.argsort(-votes[region], kind="stable")[: config.region_max_points]]

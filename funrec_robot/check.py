@@ -322,31 +322,29 @@ class _Execution:
                 if model.geom_contype[g] or model.geom_conaffinity[g]:
                     model.geom_contype[g], model.geom_conaffinity[g] = 2, 3
 
-    def _gripper_clear_of_part(self) -> bool:
-        """Whether no collidable gripper geom overlaps a handle geom (signed distance >= 0)."""
+    def _handle_overlap(self) -> float:
+        """Deepest penetration of a collidable gripper geom into a handle geom, m (0 when they do not overlap)."""
         model, data = self.model, self.data
         fromto = np.zeros(6)
+        depth = 0.0
         for g in self._gripper_array:
             if not self._saved_bits[int(g)][0] and not self._saved_bits[int(g)][1]:
                 continue
             for h in self.handle:
-                if mujoco.mj_geomDistance(model, data, int(g), int(h), 0.01, fromto) < 0.0:
-                    return False
-        return True
+                depth = max(depth, -mujoco.mj_geomDistance(model, data, int(g), int(h), 0.01, fromto))
+        return depth
+
+    def _gripper_clear_of_part(self) -> bool:
+        """Whether no collidable gripper geom overlaps a handle geom (signed distance >= 0)."""
+        return self._handle_overlap() == 0.0
 
     def _gripper_stop(self) -> float:
         """Where the gripper would stand had its fingers stopped on the handle, in command units: while attached
         they pass through it (their contacts with the part are off), so the measured gripper position is moved
         outwards by their deepest penetration into a handle geom (along the contact normal, which for a pad
         pressing on a handle is the fingers' closing direction)."""
-        model, data = self.model, self.data
-        fromto = np.zeros(6)
-        depth = 0.0
-        for g in self._gripper_array:
-            for h in self.handle:
-                depth = max(depth, -mujoco.mj_geomDistance(model, data, int(g), int(h), 0.01, fromto))
         outwards = 1.0 if self.robot.gripper.open >= self.robot.gripper.closed else -1.0
-        return gripper_position(self.indices, data) + outwards * depth
+        return gripper_position(self.indices, self.data) + outwards * self._handle_overlap()
 
     def _fell_to_stop(self, final: float) -> bool:
         """Whether a part the plan let go to fall open came to rest at the scene joint's stop beyond the plan's
@@ -459,7 +457,7 @@ class _Execution:
             q_ref = np.array([np.interp(t, plan.t, plan.q[:, j]) for j in range(robot.nq)])
             qd_ref = np.array([np.interp(t, plan.t, plan.qd[:, j]) for j in range(robot.nq)]) if t <= plan.duration else np.zeros(robot.nq)
             command = float(np.interp(t, plan.t, plan.gripper_command))
-            if release is not None and t >= release.t_start:
+            if t >= plan.release_start:
                 if grip_offset is None:
                     grip_offset = release_offset(plan, self._gripper_stop())
                 command += grip_offset
@@ -468,7 +466,7 @@ class _Execution:
                 if _point_box_distance(model, data, self.handle, p) <= cfg.engage_distance:
                     self._engage()
                     attached, engaged_at = True, t
-            if attached and release is not None and t >= release.t_start and abs(command - closed - grip_offset) > 1e-6:
+            if attached and release is not None and t >= plan.release_start and abs(command - closed - grip_offset) > 1e-6:
                 # The pads let go when they stop touching the handle: the attachment holds until the opening
                 # fingers are clear of it (the part then rests on them, if gravity pulls it that way).
                 clear = self._gripper_clear_of_part()

@@ -14,7 +14,15 @@ from funrec.typed import FloatArray
 from funrec_robot.ik import WholeBodyIK
 from funrec_robot.plan_file import Plan
 from funrec_robot.robot import RobotDescription
-from funrec_robot.scene import bodies_geoms, floor_geoms, part_geoms, part_joint, robot_bodies, subtree_bodies
+from funrec_robot.scene import (
+    bodies_geoms,
+    floor_geoms,
+    gravity_load,
+    part_geoms,
+    part_joint,
+    robot_bodies,
+    subtree_bodies,
+)
 from funrec_robot.sim_model import robot_indices
 
 
@@ -52,13 +60,10 @@ def gravity_overload(
     data = mujoco.MjData(model)
     allowed = share * robot.effort_max
     for qk, state in zip(q, states):
-        data.qpos[:] = ik.full_q(qk, float(state), fingers)
-        mujoco.mj_kinematics(model, data)
-        mujoco.mj_comPos(model, data)
-        mujoco.mj_rne(model, data, 0, data.qfrc_bias)  # with zero velocity: the gravity load
-        load = np.abs(data.qfrc_bias[indices.dof])
+        bias = gravity_load(model, data, ik.full_q(qk, float(state), fingers))
+        load = np.abs(bias[indices.dof])
         if robot.gravity_compensation:
-            load = np.abs(data.qfrc_bias[indices.dof] * model.body_gravcomp[model.dof_bodyid[indices.dof]])
+            load = np.abs(bias[indices.dof] * model.body_gravcomp[model.dof_bodyid[indices.dof]])
         over = np.flatnonzero(load > allowed)
         if len(over):
             j = int(over[0])
@@ -175,14 +180,12 @@ def joint_loads(model: mujoco.MjModel, joint: int, states: FloatArray) -> FloatA
     dof = int(model.jnt_dofadr[joint])
     data = mujoco.MjData(model)
     out = []
+    qpos = model.qpos0.copy()
     for state in states:
-        data.qpos[:] = model.qpos0
-        data.qpos[model.jnt_qposadr[joint]] = state
-        mujoco.mj_kinematics(model, data)
-        mujoco.mj_comPos(model, data)
-        mujoco.mj_rne(model, data, 0, data.qfrc_bias)  # with zero velocity: minus the gravity load
+        qpos[model.jnt_qposadr[joint]] = state
+        bias = gravity_load(model, data, qpos)
         spring = model.jnt_stiffness[joint] * (state - model.qpos_spring[model.jnt_qposadr[joint]])
-        out.append(float(data.qfrc_bias[dof] + spring))
+        out.append(float(bias[dof] + spring))
     return np.array(out)
 
 

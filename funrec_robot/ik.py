@@ -19,7 +19,7 @@ import numpy.typing as npt
 from funrec.errors import PlanningError
 from funrec.typed import FloatArray, IntArray
 from funrec_robot.robot import RobotDescription
-from funrec_robot.scene import bodies_geoms, floor_geoms, subtree_bodies
+from funrec_robot.scene import bodies_geoms, floor_geoms, gravity_load, subtree_bodies
 from funrec_robot.sim_model import ROBOT_PREFIX, robot_indices
 
 log = logging.getLogger(__name__)
@@ -117,12 +117,7 @@ class GravityLoadTask(mink.Task):
         self.data = mujoco.MjData(model)
 
     def _load(self, qpos: FloatArray) -> FloatArray:
-        data = self.data
-        data.qpos[:] = qpos
-        mujoco.mj_kinematics(self.model, data)
-        mujoco.mj_comPos(self.model, data)
-        mujoco.mj_rne(self.model, data, 0, data.qfrc_bias)  # zero velocity: the gravity load
-        return data.qfrc_bias[self.dofs] * self.scale
+        return gravity_load(self.model, self.data, qpos)[self.dofs] * self.scale
 
     def compute_error(self, configuration: mink.Configuration) -> FloatArray:
         load = self._load(configuration.q)

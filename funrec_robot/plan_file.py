@@ -120,6 +120,11 @@ class Plan:
     def duration(self) -> float:
         return float(self.t[-1])
 
+    @property
+    def release_start(self) -> float:
+        """Start of the first release segment, s (inf without one): where ``release_offset`` starts to apply."""
+        return next((s.t_start for s in self.segments if s.label == "release"), float("inf"))
+
 
 def release_offset(plan: Plan, measured_grip: float) -> float:
     """What an executor adds to the plan's gripper commands from the start of the release segment on.

@@ -269,8 +269,8 @@ def _limits(facts: ModelFacts, planning: tuple[str, ...]) -> dict[str, Any]:
             )
     home = {n: float(q) for n, q in zip(planning, limits["q_home"])}
     limits["q_postures"] = tuple(np.array([{**home, **posture}[n] for n in planning]) for posture in file.postures)
-    for key, q_all in (("home", [limits["q_home"]]), *((f"postures[{k}]", [q]) for k, q in enumerate(limits["q_postures"]))):
-        outside = [n for n, (low, high), q in zip(planning, ranges, q_all[0]) if not low <= q <= high]
+    for key, q_key in (("home", limits["q_home"]), *((f"postures[{k}]", q) for k, q in enumerate(limits["q_postures"]))):
+        outside = [n for n, (low, high), q in zip(planning, ranges, q_key) if not low <= q <= high]
         if outside:
             raise RobotDescriptionError(file.path, f"{key}: outside the position limits: {format_names(outside)}")
     for name, value in file.held_joints.items():

@@ -150,10 +150,9 @@ class Ros2Driver:
         for client, goal in pending:
             client.send_goal_async(goal).add_done_callback(lambda f: self._accepted(f, finished))
         if self._gripper is not None:
-            release_start = next((s.t_start for s in plan.segments if s.label == "release"), np.inf)
             stopped_at = [plan.grasp_command]  # where the last gripper goal left the fingers (its result)
             for t, command in gripper_switches(plan):
-                relative = t >= release_start
+                relative = t >= plan.release_start
                 threading.Timer(t, self._send_gripper, args=(plan, command, relative, stopped_at)).start()
 
     def _send_gripper(self, plan: Plan, command: float, relative: bool, stopped_at: list[float]) -> None:

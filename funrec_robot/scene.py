@@ -191,6 +191,16 @@ def _posed_data(model: mujoco.MjModel, qpos: npt.ArrayLike | None = None) -> muj
     return data
 
 
+def gravity_load(model: mujoco.MjModel, data: mujoco.MjData, qpos: npt.ArrayLike) -> FloatArray:
+    """(nv,) generalised force that holding the model still at ``qpos`` takes against gravity: ``qfrc_bias``
+    of ``mj_rne`` at zero velocity (a view into ``data``, which it overwrites)."""
+    data.qpos[:] = qpos
+    mujoco.mj_kinematics(model, data)
+    mujoco.mj_comPos(model, data)
+    mujoco.mj_rne(model, data, 0, data.qfrc_bias)
+    return data.qfrc_bias
+
+
 def static_footprint(
     model: mujoco.MjModel,
     exclude_geoms: npt.ArrayLike,
@@ -368,6 +378,7 @@ __all__ = [
     "floor_geoms",
     "geom_boxes",
     "geoms_near",
+    "gravity_load",
     "part_front",
     "part_geoms",
     "part_joint",

@@ -145,7 +145,6 @@ class SimRobot:
         model, data, plan = self.model, self.data, self.plan
         assert plan is not None
         dt = model.opt.timestep
-        release_start = next((s.t_start for s in plan.segments if s.label == "release"), np.inf)
         grip_offset: float | None = None
         started = time.monotonic()
         while not self._stop.is_set():
@@ -159,7 +158,7 @@ class SimRobot:
                 while self.plan_time < wall and self.plan_time <= plan.duration:
                     t = self.plan_time
                     data.ctrl[self.indices.actuators] = [np.interp(t, plan.t, plan.q[:, j]) for j in range(plan.q.shape[1])]
-                    if t >= release_start and grip_offset is None:
+                    if t >= plan.release_start and grip_offset is None:
                         grip_offset = release_offset(plan, gripper_position(self.indices, data))
                     data.ctrl[self.indices.gripper_actuators] = np.interp(t, plan.t, plan.gripper_command) + (grip_offset or 0.0)
                     mujoco.mj_step(model, data)

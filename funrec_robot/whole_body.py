@@ -102,12 +102,8 @@ def whole_body_configurations(
         T_via = offset_along_approach(path[0], config.via_distance)
         q_via, e_pos, e_rot = ik.solve(T_via, q_start, posture[0], start_state, opening)
         # The via pose only leads the hand around an obstacle, in free space: it need not be met to the
-        # millimetre (what it must be, collision-free, is checked below).
-        if e_pos > config.via_position_tolerance:
-            raise PlanningError(
-                f"whole-body IK: approach via pose of part '{task.part}' not reached: {1000 * e_pos:.1f} mm off "
-                f"(tolerance {1000 * config.via_position_tolerance:.0f} mm)"
-            )
+        # millimetre, nor in orientation (what it must be, collision-free, is checked below).
+        _require(e_pos, e_rot, config, "approach via pose", start_state, task, (config.via_position_tolerance, np.pi))
         approach = [q_start, q_via, q_pre, q_grasp]
         for q0, q1 in ((q_start, q_via), (q_via, q_pre)):
             hit = first_collision(model, ik, _ruckig_samples(robot, q0, q1, config), start_state, opening, allowed, floor)
@@ -204,12 +200,17 @@ def _ruckig_samples(robot: RobotDescription, q0: FloatArray, q1: FloatArray, con
     return point_to_point(q0, q1, robot.v_max, robot.a_max, config.retime).q[::2]
 
 
-def _require(e_pos: float, e_rot: float, config: PlanConfig, what: str, state: float, task: ArticulationTask) -> None:
-    if e_pos > config.track_position_tolerance or e_rot > config.track_orientation_tolerance:
+def _require(
+    e_pos: float, e_rot: float, config: PlanConfig, what: str, state: float, task: ArticulationTask,
+    tolerances: tuple[float, float] | None = None,
+) -> None:
+    """Raise unless the IK residuals are within ``tolerances`` (m, rad; default the tracking tolerances)."""
+    position, orientation = tolerances or (config.track_position_tolerance, config.track_orientation_tolerance)
+    if e_pos > position or e_rot > orientation:
         raise PlanningError(
             f"whole-body IK: {what} of part '{task.part}' at state {state:.3f} {task.unit} not reached: "
             f"{1000 * e_pos:.1f} mm, {np.rad2deg(e_rot):.1f} deg off (tolerance "
-            f"{1000 * config.track_position_tolerance:.0f} mm, {np.rad2deg(config.track_orientation_tolerance):.0f} deg)"
+            f"{1000 * position:.0f} mm, {np.rad2deg(orientation):.0f} deg)"
         )
 
 
