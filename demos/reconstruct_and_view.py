@@ -45,7 +45,7 @@ def main() -> None:
     args = parser.parse_args()
 
     from funrec import read_articulation
-    from funrec.evaluate import evaluate_twin, format_evaluation
+    from funrec.bench.evaluate import evaluate_twin, format_evaluation
     from funrec.render import render_twin
 
     capture, twin = make_twin(args.output, args.sequence)

@@ -1,8 +1,8 @@
 """FunREC: functional digital twins of rooms from egocentric RGB-D interaction videos."""
 
-from funrec.capture import Capture, CaptureIntrinsics, CaptureWriter, load_capture
 from funrec.errors import CaptureError, FormatError, FunrecError
-from funrec.twin_format import ArticulatedPart, TwinArticulation, read_articulation, write_articulation
+from funrec.formats.capture import Capture, CaptureIntrinsics, CaptureWriter, load_capture
+from funrec.formats.twin import ArticulatedPart, TwinArticulation, read_articulation, write_articulation
 
 __version__ = "0.1.0"
 

@@ -58,7 +58,7 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
 
 def _cmd_demo(args: argparse.Namespace) -> int:
     from funrec import synth
-    from funrec.evaluate import evaluate_twin, format_evaluation
+    from funrec.bench.evaluate import evaluate_twin, format_evaluation
     from funrec.pipeline import reconstruct
 
     out = Path(args.output)
@@ -90,7 +90,7 @@ def _cmd_synth(args: argparse.Namespace) -> int:
 
 
 def _cmd_check(args: argparse.Namespace) -> int:
-    from funrec.capture import load_capture
+    from funrec.formats.capture import load_capture
 
     capture = load_capture(args.capture)
     with progress_bar(f"decoding {capture.root.name}") as progress:
@@ -112,7 +112,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
 def _cmd_eval(args: argparse.Namespace) -> int:
     import json
 
-    from funrec.evaluate import evaluate_twin, evaluation_to_json, format_evaluation
+    from funrec.bench.evaluate import evaluate_twin, evaluation_to_json, format_evaluation
 
     evaluation = evaluate_twin(args.twin, args.gt)
     print(format_evaluation(evaluation))
@@ -122,7 +122,7 @@ def _cmd_eval(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
-    from funrec.bench import BenchConfig, format_report, run_bench
+    from funrec.bench.run import BenchConfig, format_report, run_bench
     from funrec.config import config_from_args
 
     config = config_from_args(BenchConfig, args)
@@ -263,7 +263,7 @@ def _add_convert(sub: Any, selected: bool) -> None:
 
 
 def _cmd_batch(args: argparse.Namespace) -> int:
-    from funrec.batch import BatchConfig, run_batch
+    from funrec.bench.batch import BatchConfig, run_batch
     from funrec.config import config_from_args
 
     with progress_bar("batch", unit="capture") as progress:
@@ -285,7 +285,7 @@ def _add_batch(sub: Any, selected: bool) -> None:
     )
     p.add_argument("dataset", type=Path, help="folder of capture folders")
     p.add_argument("-o", "--output", type=Path, required=True, help="output folder")
-    _add_config_options(p, selected, "funrec.batch", "BatchConfig")
+    _add_config_options(p, selected, "funrec.bench.batch", "BatchConfig")
     p.set_defaults(handler=_cmd_batch)
 
 
@@ -345,7 +345,7 @@ def _add_bench(sub: Any, selected: bool) -> None:
     p.add_argument("--suite-dir", type=Path, default=Path("bench_suite"), help="suite folder (default: bench_suite)")
     p.add_argument("-o", "--output", type=Path, default=Path("bench_report"), help="report folder (default: bench_report)")
     p.add_argument("--only", nargs="+", metavar="NAME", help="run only these sequences")
-    _add_config_options(p, selected, "funrec.bench", "BenchConfig")
+    _add_config_options(p, selected, "funrec.bench.run", "BenchConfig")
     p.set_defaults(handler=_cmd_bench)
 
 

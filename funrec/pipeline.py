@@ -19,14 +19,17 @@ import numpy as np
 import numpy.typing as npt
 from threadpoolctl import threadpool_limits  # a dependency of scikit-learn
 
-from funrec.affordances import AffordanceConfig, find_affordances, write_affordances
-from funrec.articulation import ArticulationConfig, InteractionEvidence, PartEstimate, estimate_articulation
-from funrec.camera_lock import CameraLockConfig, unlock_camera
-from funrec.capture import Capture, load_capture
+from funrec.affordance.contacts import AffordanceConfig, find_affordances, write_affordances
+from funrec.camera.tracking import TrackingConfig, track_camera
 from funrec.export.simulation import ExportConfig, export_simulation
 from funrec.export.twin import TwinWriter
-from funrec.fragment_tracks import WindowTracks, join_windows, sub_capture, sub_trajectory, track_window
-from funrec.fragments import (
+from funrec.formats.capture import Capture, load_capture
+from funrec.formats.twin import ArticulatedPart, TwinArticulation, make_part
+from funrec.geometry.transforms import transform_points
+from funrec.parts.articulation import ArticulationConfig, InteractionEvidence, PartEstimate, estimate_articulation
+from funrec.parts.camera_lock import CameraLockConfig, unlock_camera
+from funrec.parts.fragment_tracks import WindowTracks, join_windows, sub_capture, sub_trajectory, track_window
+from funrec.parts.fragments import (
     Fragment,
     FragmentConfig,
     Fragments,
@@ -35,17 +38,14 @@ from funrec.fragments import (
     motion_span,
     write_fragments,
 )
-from funrec.fusion import FusionConfig, fuse_tsdf
-from funrec.geometry.transforms import transform_points
-from funrec.gravity import GravityConfig, estimate_gravity
-from funrec.hands import TWIN_HAND_MASKS, detect_hands, write_hand_masks
-from funrec.part_merge import PartMergeConfig, canonical_part_points, merge_parts
-from funrec.part_motion import PartMotion, PartMotionConfig, refine_part_motion
-from funrec.point_tracks import PointTrackConfig
-from funrec.scene_change import SceneChangeConfig, scene_change
-from funrec.segmentation import PartMasks, SegmentationConfig, segment_parts
-from funrec.tracking import TrackingConfig, track_camera
-from funrec.twin_format import ArticulatedPart, TwinArticulation, make_part
+from funrec.parts.part_merge import PartMergeConfig, canonical_part_points, merge_parts
+from funrec.parts.part_motion import PartMotion, PartMotionConfig, refine_part_motion
+from funrec.parts.point_tracks import PointTrackConfig
+from funrec.parts.scene_change import SceneChangeConfig, scene_change
+from funrec.surfaces.fusion import FusionConfig, fuse_tsdf
+from funrec.surfaces.gravity import GravityConfig, estimate_gravity
+from funrec.surfaces.hands import TWIN_HAND_MASKS, detect_hands, write_hand_masks
+from funrec.surfaces.segmentation import PartMasks, SegmentationConfig, segment_parts
 from funrec.typed import FloatArray
 
 log = logging.getLogger(__name__)
@@ -93,7 +93,7 @@ class ReconstructConfig:
     """Use the capture's interacted-object masks when it has them."""
     align_fragments: bool = True
     """When the video has more than one fragment, register the fragments' static submaps and
-    correct the camera trajectory per fragment (:func:`funrec.global_alignment.align_fragments`,
+    correct the camera trajectory per fragment (:func:`funrec.camera.global_alignment.align_fragments`,
     default settings) before the dynamic fragments are tracked; a correction is kept only where it
     fits better than the tracker's poses (measured on multi_kitchen_00, multi_same_00 and
     rev_cabinet_left_00 of the synthetic bench: no camera moved by more than 0.4 mm); off: the
@@ -232,7 +232,7 @@ def _final_fragments(fragments: Fragments, windows: list[WindowTracks], found: l
                      arm_in_evidence: bool = True) -> Fragments:
     """The fragments once parts are known: each dynamic fragment in which a part was found is
     trimmed to that part's motion inside the fragment's window where its states show it
-    (:func:`~funrec.fragments.motion_span`) and names the part; one in which no part was found is
+    (:func:`~funrec.parts.fragments.motion_span`) and names the part; one in which no part was found is
     static (the motion was the hand, or drift). Trimming, and a side the states miss taken from the
     scene change of the part's motion, happen only with ``arm_in_evidence`` (no hand masks: the
     scene change also shows the arm reaching in and out); with hand masks the hand-gated scene
@@ -327,7 +327,7 @@ def _reconstruct(capture_dir: str | Path, out_dir: str | Path, config: Reconstru
         fragments = find_fragments(change, capture.intrinsics.fps, config.scene_change.lag_frames, _hand_visible(capture),
                                    config.fragments)
         if config.align_fragments and len(fragments.fragments) > 1:
-            from funrec.global_alignment import align_fragments  # optional stage: imported only when on
+            from funrec.camera.global_alignment import align_fragments  # optional stage: imported only when on
 
             intervals = [(f.first, f.last) for f in fragments.fragments]
             alignment = timed("alignment", align_fragments, capture, trajectory, intervals, progress=stage_progress("alignment"))

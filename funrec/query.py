@@ -11,10 +11,10 @@ from typing import Any
 
 import numpy as np
 
-from funrec.affordances import AFFORDANCES_FILE, Affordances, read_affordances
+from funrec.affordance.contacts import AFFORDANCES_FILE, Affordances, read_affordances
 from funrec.errors import FunrecError
+from funrec.formats.twin import ArticulatedPart, read_articulation
 from funrec.geometry.joints import joint_transform
-from funrec.twin_format import ArticulatedPart, read_articulation
 from funrec.typed import FloatArray
 
 RANGE_TOL = 1e-6
@@ -91,7 +91,7 @@ def grasp_frame(twin_dir: str | Path, part: str, state: float) -> FloatArray:
 
     Returns:
         (4, 4) ``T_world_grasp`` at ``state``, the twin's world frame (z approach, x along the
-        handle, y across it; see :mod:`funrec.affordances`).
+        handle, y across it; see :mod:`funrec.affordance.contacts`).
 
     Raises:
         QueryError: unknown part, part without an affordance, or state outside the range.

@@ -9,10 +9,10 @@ from pathlib import Path
 
 import numpy as np
 
-from funrec.camera_poses import read_camera_poses
 from funrec.errors import FunrecError
+from funrec.formats.camera_poses import read_camera_poses
+from funrec.formats.twin import ArticulatedPart, read_articulation
 from funrec.offscreen import ensure_gl_backend
-from funrec.twin_format import ArticulatedPart, read_articulation
 
 log = logging.getLogger(__name__)
 

@@ -16,12 +16,12 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from funrec.affordances import AFFORDANCES_FILE, Affordances, read_affordances
-from funrec.camera_poses import read_camera_poses
+from funrec.affordance.contacts import AFFORDANCES_FILE, Affordances, read_affordances
+from funrec.bench.evaluate import load_ply
 from funrec.errors import FunrecError
-from funrec.evaluate import load_ply
+from funrec.formats.camera_poses import read_camera_poses
+from funrec.formats.twin import ArticulatedPart, read_articulation
 from funrec.geometry.joints import joint_transform
-from funrec.twin_format import ArticulatedPart, read_articulation
 
 logger = logging.getLogger(__name__)
 

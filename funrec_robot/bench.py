@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from funrec.errors import FunrecError
-from funrec.ground_truth import read_ground_truth
+from funrec.formats.ground_truth import read_ground_truth
 from funrec_robot.check import CheckConfig, T_scene_plan_from_gt, check_plan
 from funrec_robot.plan import PlanConfig, plan_interaction
 from funrec_robot.plan_file import write_plan
@@ -138,7 +138,7 @@ def _ground_truth_rows(case, gt, robot, target, plan_config, check_config, plans
 
 def _twin_rows(case, gt, robot, target, plan_config, check_config, plans_dir, twin):  # noqa: ANN001, ANN202
     """One row per true part: the nearest twin part planned on the twin and checked in the true scene."""
-    from funrec.twin_format import read_articulation
+    from funrec.formats.twin import read_articulation
     from funrec_robot.replay import nearest_gt_joint
 
     true_types = {p.part.name: p.part.joint_type for p in gt.parts}

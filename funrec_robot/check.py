@@ -589,8 +589,8 @@ def T_scene_plan_from_gt(plan: Plan, gt_dir: str | Path) -> FloatArray:
         PlanningError: the twin's frame is not gravity-aligned with the scene, or its floor is not the scene's
             (the robot cannot stand in it).
     """
-    from funrec.camera_poses import read_camera_poses
-    from funrec.ground_truth import read_ground_truth
+    from funrec.formats.camera_poses import read_camera_poses
+    from funrec.formats.ground_truth import read_ground_truth
 
     gt = read_ground_truth(gt_dir)
     source = str(plan.provenance.get("task_source", ""))

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from funrec.errors import FormatError, PlanningError
-from funrec.twin_format import read_json_object
+from funrec.formats.twin import read_json_object
 from funrec_robot.check import CheckReport
 from funrec_robot.plan_file import sha256_file
 

@@ -93,7 +93,7 @@ def demonstrated_interactions(twin_dir: str | Path) -> tuple[DemoInteraction, ..
 
 def nearest_gt_joint(gt_dir: Path, T_scene_twin: np.ndarray, p_twin_contact: np.ndarray) -> str:
     """The ground-truth part whose handle is nearest the twin's contact point (both in the scene's frame)."""
-    from funrec.ground_truth import read_ground_truth
+    from funrec.formats.ground_truth import read_ground_truth
 
     gt = read_ground_truth(gt_dir)
     p_scene = T_scene_twin[:3, :3] @ p_twin_contact + T_scene_twin[:3, 3]

@@ -16,8 +16,8 @@ import numpy as np
 import numpy.typing as npt
 
 from funrec.errors import FormatError, PlanningError
-from funrec.ground_truth import GroundTruth, read_ground_truth
-from funrec.twin_format import ArticulatedPart, read_articulation
+from funrec.formats.ground_truth import GroundTruth, read_ground_truth
+from funrec.formats.twin import ArticulatedPart, read_articulation
 from funrec.typed import FloatArray
 from funrec_robot.errors import format_names
 from funrec_robot.handle_geometry import measure_handle
@@ -180,7 +180,7 @@ def _mesh_grasp(root: Path, joint: ArticulatedPart) -> tuple[FloatArray, FloatAr
     farthest from the hinge, at the part's mid-height, with a handle along the hinge axis; a drawer in the
     middle of its front with a handle across the motion.
     """
-    from funrec.camera_poses import read_camera_poses
+    from funrec.formats.camera_poses import read_camera_poses
 
     if joint.mesh is None:
         raise PlanningError(f"{root}: part '{joint.name}' has neither an affordance nor a mesh to grasp it by")
@@ -241,7 +241,7 @@ def task_from_twin(
     Raises:
         FormatError: a missing or malformed file or field; PlanningError: unknown part or hold.
     """
-    from funrec.affordances import AFFORDANCES_FILE
+    from funrec.affordance.contacts import AFFORDANCES_FILE
     from funrec.query import load_affordances
 
     root = Path(twin_dir)

@@ -1,4 +1,4 @@
-"""Tests of funrec.affordances and funrec.affordance_metrics.
+"""Tests of funrec.affordance.contacts and funrec.bench.affordance_metrics.
 
 Known answer: a box door with a bar handle, rendered with Open3D ray casting (depth, hand masks),
 opened by a box hand that holds the bar; the contact point, grasp axes, hold and trajectory are
@@ -21,9 +21,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from scipy.spatial.transform import Rotation
 
-from funrec.affordance_handle import front_plane, grasp_at_handle
-from funrec.affordance_metrics import evaluate_affordances, format_affordance_evaluation
-from funrec.affordances import (
+from funrec.affordance.contacts import (
     AFFORDANCES_FORMAT,
     AffordanceConfig,
     Affordances,
@@ -34,14 +32,16 @@ from funrec.affordances import (
     read_affordances,
     write_affordances,
 )
-from funrec.camera_poses import write_camera_poses
-from funrec.capture import CaptureIntrinsics, CaptureWriter, load_capture
+from funrec.affordance.handle import front_plane, grasp_at_handle
+from funrec.bench.affordance_metrics import evaluate_affordances, format_affordance_evaluation
+from funrec.camera.tracking import CameraTrajectory
 from funrec.errors import FormatError
+from funrec.formats.camera_poses import write_camera_poses
+from funrec.formats.capture import CaptureIntrinsics, CaptureWriter, load_capture
+from funrec.formats.twin import TwinArticulation, make_part, write_articulation
 from funrec.geometry.joints import joint_transform, joint_transforms
 from funrec.geometry.transforms import make_transform, transform_points
-from funrec.hands import HandConfig, detect_hands
-from funrec.tracking import CameraTrajectory
-from funrec.twin_format import TwinArticulation, make_part, write_articulation
+from funrec.surfaces.hands import HandConfig, detect_hands
 
 # --------------------------------------------------------------------------------------------
 # Known-answer scene: camera 0 is the world frame (OpenCV: x right, y down, z forward).
@@ -375,8 +375,8 @@ def test_tiny_capture_contact_is_at_the_true_handle(tiny_capture: Path, tmp_path
 def test_metric_moves_the_true_handle_to_the_twin_canonical_state(tiny_capture: Path, tmp_path: Path, sign: float) -> None:
     """A twin whose canonical state is mid-opening (and whose axis may point the other way),
     in a world frame that is not camera 0, with the contact exactly at the true handle there."""
+    from funrec.formats.ground_truth import read_ground_truth
     from funrec.geometry.transforms import invert_transform
-    from funrec.ground_truth import read_ground_truth
 
     gt = read_ground_truth(tiny_capture / "gt")
     (truth,) = gt.parts

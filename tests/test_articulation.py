@@ -15,11 +15,11 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from scipy.spatial.transform import Rotation
 
-from funrec.articulation import ArticulationConfig, InteractionEvidence, PartEstimate, estimate_articulation
 from funrec.geometry.camera import project
 from funrec.geometry.joints import closest_point_on_axis_to_origin, joint_transforms
 from funrec.geometry.transforms import invert_transform, make_transform
-from funrec.point_tracks import PointTracks
+from funrec.parts.articulation import ArticulationConfig, InteractionEvidence, PartEstimate, estimate_articulation
+from funrec.parts.point_tracks import PointTracks
 
 K = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
 """Synthetic 640x480 camera."""
@@ -400,12 +400,12 @@ RENDERED_TOL = {
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["smoke_rev_00", "smoke_pri_00"])
 def test_rendered_capture_joint_against_ground_truth(smoke_captures, name: str) -> None:
-    from funrec import metrics
-    from funrec.capture import load_capture
-    from funrec.ground_truth import read_ground_truth
-    from funrec.part_motion import refine_part_motion
-    from funrec.point_tracks import track_points
-    from funrec.tracking import track_camera
+    from funrec.bench import metrics
+    from funrec.camera.tracking import track_camera
+    from funrec.formats.capture import load_capture
+    from funrec.formats.ground_truth import read_ground_truth
+    from funrec.parts.part_motion import refine_part_motion
+    from funrec.parts.point_tracks import track_points
 
     capture = load_capture(smoke_captures[name])
     truth = read_ground_truth(smoke_captures[name] / "gt")
@@ -439,9 +439,9 @@ def test_rendered_camera_only_capture_has_no_part(smoke_captures) -> None:
     # in smoke_static_00) forms a coherent 6 cm "drawer"; its seed does not follow it
     # (min_seed_coherence), so the whole capture's tracks, not only its dynamic fragments, yield
     # no part.
-    from funrec.capture import load_capture
-    from funrec.point_tracks import track_points
-    from funrec.tracking import track_camera
+    from funrec.camera.tracking import track_camera
+    from funrec.formats.capture import load_capture
+    from funrec.parts.point_tracks import track_points
 
     capture = load_capture(smoke_captures["smoke_static_00"])
     assert estimate_articulation(track_points(capture, track_camera(capture))).parts == ()

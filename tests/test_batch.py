@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from funrec.batch import BatchConfig, run_batch, run_capture, twin_is_complete
+from funrec.bench.batch import BatchConfig, run_batch, run_capture, twin_is_complete
 from funrec.cli import main
 from funrec.errors import FunrecError
-from funrec.twin_format import TwinArticulation, read_articulation, write_articulation
+from funrec.formats.twin import TwinArticulation, read_articulation, write_articulation
 
 
 def _fake_capture(root: Path, name: str) -> Path:

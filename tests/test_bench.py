@@ -1,4 +1,4 @@
-"""Tests of funrec.bench on a two-sequence suite written by the test_evaluate fixture (no funrec.synth)."""
+"""Tests of funrec.bench.run on a two-sequence suite written by the test_evaluate fixture (no funrec.synth)."""
 
 from __future__ import annotations
 
@@ -10,11 +10,12 @@ from pathlib import Path
 import pytest
 from test_evaluate import write_tiny_sequence
 
-from funrec import bench, bench_report
-from funrec.bench import BenchConfig, format_report, run_bench, summarize
+from funrec.bench import report as bench_report
+from funrec.bench import run as bench
+from funrec.bench.evaluate import PartEvaluation, TwinEvaluation
+from funrec.bench.run import BenchConfig, format_report, run_bench, summarize
 from funrec.config import add_config_arguments, config_from_args
 from funrec.errors import FunrecError
-from funrec.evaluate import PartEvaluation, TwinEvaluation
 from funrec.pipeline import ReconstructConfig
 
 SEQUENCES = ("seq_a", "seq_b")
@@ -185,7 +186,7 @@ def test_summary_averages_over_non_failed_parts_and_fails_over_all():
 def test_summary_scores_contacts_over_all_scored_parts_and_fragments_per_sequence():
     from dataclasses import replace
 
-    from funrec.fragment_metrics import score_fragments
+    from funrec.bench.fragment_metrics import score_fragments
 
     door = PartEvaluation("d", "revolute", "p", None, 0.0, 5, 2.0, 0.1, 4.0, 80.0, 60.0, 50.0, contact_error_m=0.01)
     far = replace(door, contact_error_m=0.05)

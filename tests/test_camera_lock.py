@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from funrec.articulation import estimate_articulation
-from funrec.camera_lock import unlock_camera
-from funrec.fragment_tracks import WindowTracks
+from funrec.camera.tracking import CameraTrajectory
 from funrec.geometry.joints import joint_transforms
-from funrec.point_tracks import PointTracks
-from funrec.tracking import CameraTrajectory
+from funrec.parts.articulation import estimate_articulation
+from funrec.parts.camera_lock import unlock_camera
+from funrec.parts.fragment_tracks import WindowTracks
+from funrec.parts.point_tracks import PointTracks
 from tests.test_articulation import make_scene
 
 

@@ -11,8 +11,8 @@ import cv2
 import numpy as np
 import pytest
 
-from funrec.capture import CaptureIntrinsics, CaptureWriter, load_capture, read_intrinsics
 from funrec.errors import CaptureError
+from funrec.formats.capture import CaptureIntrinsics, CaptureWriter, load_capture, read_intrinsics
 
 W, H = 32, 24
 
@@ -150,7 +150,7 @@ def test_known_camera_poses_must_cover_every_frame(capture_dir: Path) -> None:
 
 
 def test_prefetched_frames_equal_direct_reads_and_stay_bounded(tmp_path: Path) -> None:
-    from funrec.capture import PREFETCH_FRAMES
+    from funrec.formats.capture import PREFETCH_FRAMES
 
     capture = load_capture(_write_capture(tmp_path / "c", frames=12, hand_masks=True))
     fresh = load_capture(tmp_path / "c")

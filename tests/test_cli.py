@@ -12,7 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from funrec.capture import CaptureIntrinsics, CaptureWriter
+from funrec.formats.capture import CaptureIntrinsics, CaptureWriter
 
 
 def _funrec(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
@@ -56,7 +56,7 @@ def test_check_reads_every_frame(tiny_capture: Path) -> None:
 
 
 def test_eval_of_the_oracle_twin_is_perfect(tiny_capture: Path, tmp_path: Path) -> None:
-    from funrec.baselines import write_oracle_twin
+    from funrec.bench.baselines import write_oracle_twin
 
     twin = write_oracle_twin(tiny_capture, tmp_path / "oracle")
     result = _funrec("eval", str(twin), str(tiny_capture / "gt"), "--json", str(tmp_path / "eval.json"))
@@ -67,10 +67,10 @@ def test_eval_of_the_oracle_twin_is_perfect(tiny_capture: Path, tmp_path: Path) 
 
 def _oracle_with_contact(tiny_capture: Path, twin: Path) -> tuple[Path, str, np.ndarray]:
     """The oracle twin of the tiny capture with an affordance exactly at the true handle."""
-    from funrec.affordances import Affordances, Interaction, PartAffordance, write_affordances
-    from funrec.baselines import write_oracle_twin
+    from funrec.affordance.contacts import Affordances, Interaction, PartAffordance, write_affordances
+    from funrec.bench.baselines import write_oracle_twin
+    from funrec.formats.ground_truth import read_ground_truth
     from funrec.geometry.transforms import invert_transform, make_transform, transform_points
-    from funrec.ground_truth import read_ground_truth
 
     write_oracle_twin(tiny_capture, twin)
     gt = read_ground_truth(tiny_capture / "gt")

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from funrec.capture import load_capture
 from funrec.convert import ConvertConfig, convert, detect_format
 from funrec.convert.azure_kinect import parse_calibration
 from funrec.convert.registration import register_depth
 from funrec.errors import CaptureError
+from funrec.formats.capture import load_capture
 from funrec.geometry.camera import backproject
 
 MKV = Path("/work/shared/realdata/azure_kinect_mkv/recording.mkv")

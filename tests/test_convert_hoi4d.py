@@ -14,15 +14,15 @@ import open3d as o3d
 import pytest
 from scipy.spatial.transform import Rotation
 
-from funrec.baselines import write_oracle_twin
-from funrec.capture import load_capture
+from funrec.bench.baselines import write_oracle_twin
+from funrec.bench.evaluate import evaluate_twin
 from funrec.cli import main
 from funrec.convert import ConvertConfig, convert, detect_format
 from funrec.errors import CaptureError
-from funrec.evaluate import evaluate_twin
+from funrec.formats.capture import load_capture
+from funrec.formats.ground_truth import read_ground_truth
 from funrec.geometry.joints import joint_transform
 from funrec.geometry.transforms import invert_transform, make_transform
-from funrec.ground_truth import read_ground_truth
 
 W, H, FRAMES, FPS = 96, 64, 20, 15.0
 K = np.array([[80.0, 0, 47.5], [0, 80.0, 31.5], [0, 0, 1]])

@@ -11,9 +11,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 pytest.importorskip("rosbags")
-from funrec.capture import load_capture  # noqa: E402
 from funrec.convert import convert, detect_format  # noqa: E402
 from funrec.errors import CaptureError  # noqa: E402
+from funrec.formats.capture import load_capture  # noqa: E402
 
 W, H = 64, 48
 FRAMES = 4

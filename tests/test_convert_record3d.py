@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 lzfse = pytest.importorskip("lzfse")
-from funrec.capture import load_capture  # noqa: E402
 from funrec.convert import ConvertConfig, convert, detect_format  # noqa: E402
 from funrec.errors import CaptureError  # noqa: E402
+from funrec.formats.capture import load_capture  # noqa: E402
 
 W, H, DW, DH = 128, 96, 32, 24
 FX, FY, CX, CY = 110.0, 111.0, 63.2, 47.9

@@ -12,9 +12,9 @@ from rosbags.rosbag1 import Writer as Writer1  # noqa: E402
 from rosbags.rosbag2 import Writer as Writer2  # noqa: E402
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
-from funrec.capture import load_capture  # noqa: E402
 from funrec.convert import ConvertConfig, convert, detect_format  # noqa: E402
 from funrec.errors import CaptureError  # noqa: E402
+from funrec.formats.capture import load_capture  # noqa: E402
 
 W, H = 64, 48
 K = [50.0, 0.0, 31.5, 0.0, 50.0, 23.5, 0.0, 0.0, 1.0]

@@ -11,15 +11,15 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from funrec.capture import load_capture
+from funrec.bench.evaluate import evaluate_twin
+from funrec.bench.metrics import camera_ate
+from funrec.camera.tracking import track_camera
 from funrec.cli import main
 from funrec.convert import ConvertConfig, convert, detect_format
 from funrec.convert.association import associate_nearest
 from funrec.errors import CaptureError, FunrecError
-from funrec.evaluate import evaluate_twin
-from funrec.ground_truth import read_ground_truth
-from funrec.metrics import camera_ate
-from funrec.tracking import track_camera
+from funrec.formats.capture import load_capture
+from funrec.formats.ground_truth import read_ground_truth
 
 TUM_DIR = Path("/work/shared/realdata/tum_fr1_xyz_10")
 

@@ -1,4 +1,4 @@
-"""Joint states from depth (funrec.depth_states) on a ray-traced door that turns past edge-on."""
+"""Joint states from depth (funrec.parts.depth_states) on a ray-traced door that turns past edge-on."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from funrec.depth_states import DepthStateConfig, _min_cost_chain, depth_states, oriented_normals
 from funrec.geometry.joints import joint_transforms
+from funrec.parts.depth_states import DepthStateConfig, _min_cost_chain, depth_states, oriented_normals
 
 K = np.array([[150.0, 0.0, 80.0], [0.0, 150.0, 60.0], [0.0, 0.0, 1.0]])
 """Synthetic 160x120 camera (world frame = camera frame, OpenCV axes)."""

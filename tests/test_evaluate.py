@@ -1,4 +1,4 @@
-"""Tests of funrec.evaluate and funrec.baselines on a hand-built ground-truth sequence.
+"""Tests of funrec.bench.evaluate and funrec.bench.baselines on a hand-built ground-truth sequence.
 
 The fixture (``write_tiny_sequence``) is written with numpy only, so these tests do not depend
 on funrec.synth: a wall and a floor as static points, a revolute door and a prismatic drawer
@@ -20,15 +20,15 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from funrec.baselines import write_oracle_twin, write_trivial_twin
-from funrec.camera_poses import read_camera_poses, write_camera_poses
-from funrec.capture import CaptureIntrinsics, CaptureWriter, write_mask
-from funrec.evaluate import EvalConfig, evaluate_twin, evaluation_to_json, format_evaluation
+from funrec.bench.baselines import write_oracle_twin, write_trivial_twin
+from funrec.bench.evaluate import EvalConfig, evaluate_twin, evaluation_to_json, format_evaluation
+from funrec.formats.camera_poses import read_camera_poses, write_camera_poses
+from funrec.formats.capture import CaptureIntrinsics, CaptureWriter, write_mask
+from funrec.formats.ground_truth import GroundTruthPart, write_ground_truth_json
+from funrec.formats.twin import TwinArticulation, make_part, read_articulation, write_articulation
 from funrec.geometry.camera import project
 from funrec.geometry.joints import joint_transform
 from funrec.geometry.transforms import invert_transform, make_transform, rotation_about_axis, transform_points
-from funrec.ground_truth import GroundTruthPart, write_ground_truth_json
-from funrec.twin_format import TwinArticulation, make_part, read_articulation, write_articulation
 
 FRAME_COUNT = 12
 INTRINSICS = CaptureIntrinsics(width=64, height=48, fx=40.0, fy=40.0, cx=31.5, cy=23.5, depth_scale=1000.0, fps=15.0)
@@ -380,7 +380,7 @@ def test_oracle_on_a_synth_sequence_if_available(tmp_path):
 
 def _write_contact(twin: Path, contacts: dict[str, np.ndarray], hand_source: str = "detected") -> None:
     """affordances.json with one held part per entry, contact point (twin world, canonical state)."""
-    from funrec.affordances import Affordances, Interaction, PartAffordance, write_affordances
+    from funrec.affordance.contacts import Affordances, Interaction, PartAffordance, write_affordances
 
     parts = []
     for name, contact in contacts.items():
@@ -394,7 +394,7 @@ def _write_contact(twin: Path, contacts: dict[str, np.ndarray], hand_source: str
 
 def _true_handles_in(twin: Path, capture: Path) -> dict[str, np.ndarray]:
     """The true handle centres mapped into a twin's world frame through frame 0 (canonical state)."""
-    from funrec.ground_truth import read_ground_truth
+    from funrec.formats.ground_truth import read_ground_truth
 
     gt = read_ground_truth(capture / "gt")
     T_twin_gt = read_camera_poses(twin / "camera_poses.txt").T_world_camera[0] @ invert_transform(gt.T_world_camera[0])
@@ -416,7 +416,7 @@ def test_contact_error_is_the_distance_to_the_true_handle(capture, oracle, tmp_p
 def test_contact_error_does_not_depend_on_the_canonical_state(capture, oracle, tmp_path):
     """A twin whose canonical state is the door's state at frame 5: its contact point is the
     true handle moved there, and still scores 0."""
-    from funrec.ground_truth import read_ground_truth
+    from funrec.formats.ground_truth import read_ground_truth
 
     twin = _copy(oracle, tmp_path)
     door = next(p for p in read_articulation(twin).parts if p.name == "door")

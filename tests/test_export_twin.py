@@ -9,7 +9,7 @@ import pytest
 
 from funrec.errors import FunrecError
 from funrec.export import TwinWriter
-from funrec.twin_format import TwinArticulation, make_part, read_articulation
+from funrec.formats.twin import TwinArticulation, make_part, read_articulation
 
 
 def _articulation() -> TwinArticulation:

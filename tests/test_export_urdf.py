@@ -23,9 +23,9 @@ from funrec.errors import ExportError
 from funrec.export.collision import CollisionConfig, convex_piece, decompose
 from funrec.export.sim_model import mass_properties, part_link_frame
 from funrec.export.simulation import ExportConfig, SimulationExports, export_simulation
+from funrec.formats.twin import ArticulatedPart, TwinArticulation, make_part, read_articulation, write_articulation
 from funrec.geometry.joints import joint_transform
 from funrec.geometry.transforms import make_transform, transform_points
-from funrec.twin_format import ArticulatedPart, TwinArticulation, make_part, read_articulation, write_articulation
 
 POSITION_ATOL_M = 1e-3
 """Required agreement of simulator part poses with articulation.json (1 mm)."""

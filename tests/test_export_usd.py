@@ -13,8 +13,8 @@ from scipy.spatial.transform import Rotation
 from test_export_urdf import FAST_EXPORT, assert_part_pose, export, sample_states
 
 from funrec.export.simulation import SimulationExports
+from funrec.formats.twin import read_articulation
 from funrec.geometry.transforms import make_transform, transform_points
-from funrec.twin_format import read_articulation
 
 pxr = pytest.importorskip("pxr")
 from pxr import Usd, UsdGeom, UsdPhysics  # noqa: E402

@@ -1,10 +1,10 @@
-"""Tests of funrec.features.sample_depth: the robust window depth against a direct nanmedian."""
+"""Tests of funrec.camera.features.sample_depth: the robust window depth against a direct nanmedian."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from funrec.features import sample_depth
+from funrec.camera.features import sample_depth
 
 
 def _reference(depth_m: np.ndarray, uv: np.ndarray, window_px: int, max_spread: float) -> np.ndarray:

@@ -12,11 +12,11 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from scipy.spatial.transform import Rotation
 
-from funrec.camera_poses import read_camera_poses, write_camera_poses
 from funrec.errors import FormatError
+from funrec.formats.camera_poses import read_camera_poses, write_camera_poses
+from funrec.formats.ground_truth import GroundTruthPart, read_ground_truth, write_ground_truth_json
+from funrec.formats.twin import TwinArticulation, make_part, read_articulation, write_articulation
 from funrec.geometry import make_transform
-from funrec.ground_truth import GroundTruthPart, read_ground_truth, write_ground_truth_json
-from funrec.twin_format import TwinArticulation, make_part, read_articulation, write_articulation
 
 # camera_poses.txt keeps 6 decimals of translation (1 micrometre) and 7 of quaternion
 # (rotation error ~1e-7 rad): 2e-6 covers both after the matrix conversion.

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from funrec.fragment_metrics import score_fragments, score_twin_fragments, true_intervals
-from funrec.fragments import Fragments, fragments_from_spans, write_fragments
+from funrec.bench.fragment_metrics import score_fragments, score_twin_fragments, true_intervals
+from funrec.parts.fragments import Fragments, fragments_from_spans, write_fragments
 
 FPS = 15.0
 

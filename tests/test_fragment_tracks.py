@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from funrec.capture import CaptureIntrinsics, CaptureWriter, load_capture
-from funrec.fragment_tracks import WindowTracks, join_windows, sub_capture, sub_trajectory
-from funrec.point_tracks import PointTracks
-from funrec.tracking import CameraTrajectory
+from funrec.camera.tracking import CameraTrajectory
+from funrec.formats.capture import CaptureIntrinsics, CaptureWriter, load_capture
+from funrec.parts.fragment_tracks import WindowTracks, join_windows, sub_capture, sub_trajectory
+from funrec.parts.point_tracks import PointTracks
 
 
 def _tracks(frame_count: int, track_count: int, value: float) -> PointTracks:

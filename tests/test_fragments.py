@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from funrec.errors import FormatError
-from funrec.fragments import (
+from funrec.parts.fragments import (
     FragmentConfig,
     Fragments,
     dynamic_spans,

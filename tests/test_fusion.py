@@ -1,4 +1,4 @@
-"""Tests of funrec.fusion: fragment removal, input validation, chamfer distance and the canonical
+"""Tests of funrec.surfaces.fusion: fragment removal, input validation, chamfer distance and the canonical
 state of the part mesh with true poses and masks and with estimated ones, and memory that does
 not grow with frames."""
 
@@ -16,13 +16,13 @@ import trimesh
 # Shared synthetic-sequence helpers (tests/ is on sys.path under pytest's default import mode).
 from test_segmentation import EstimatedRun, estimated_run, synth_sequence, true_inputs, true_mask  # noqa: F401, F811 (fixture)
 
+from funrec.bench.metrics import chamfer_distance
 from funrec.errors import ReconstructionError
-from funrec.fusion import _large_pieces, _raycaster, _render_depth, fuse_tsdf
 from funrec.geometry.joints import joint_transforms
 from funrec.geometry.transforms import invert_transform, transform_points
-from funrec.hands import HandMasks
-from funrec.metrics import chamfer_distance
-from funrec.segmentation import PartMasks, encode_mask
+from funrec.surfaces.fusion import _large_pieces, _raycaster, _render_depth, fuse_tsdf
+from funrec.surfaces.hands import HandMasks
+from funrec.surfaces.segmentation import PartMasks, encode_mask
 
 TARGET_CD_M = 0.015
 """Project target: scene chamfer distance (static and part) <= 1.5 cm."""
@@ -154,9 +154,9 @@ import numpy as np
 from dataclasses import replace
 from pathlib import Path
 from test_segmentation import true_inputs, true_mask
-from funrec.fusion import FusionConfig, fuse_tsdf
-from funrec.segmentation import PartMasks
-from funrec.tracking import CameraTrajectory
+from funrec.surfaces.fusion import FusionConfig, fuse_tsdf
+from funrec.surfaces.segmentation import PartMasks
+from funrec.camera.tracking import CameraTrajectory
 root, repeat = Path(sys.argv[1]), int(sys.argv[2])
 capture, gt, trajectory, frames, T_world_part = true_inputs(root)
 # The same views repeated: the volume stays the same size while the frame count grows.

@@ -14,14 +14,14 @@ import trimesh
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from funrec import global_alignment
-from funrec.capture import CaptureIntrinsics, CaptureWriter, load_capture
+from funrec.bench.metrics import camera_ate
+from funrec.camera import global_alignment
+from funrec.camera.global_alignment import GlobalAlignmentConfig, _blend, align_fragments
+from funrec.camera.registration import RegistrationConfig, _score
+from funrec.camera.submaps import SubmapConfig, build_submap
+from funrec.camera.tracking import CameraTrajectory
+from funrec.formats.capture import CaptureIntrinsics, CaptureWriter, load_capture
 from funrec.geometry.transforms import invert_transform, make_transform
-from funrec.global_alignment import GlobalAlignmentConfig, _blend, align_fragments
-from funrec.metrics import camera_ate
-from funrec.registration import RegistrationConfig, _score
-from funrec.submaps import SubmapConfig, build_submap
-from funrec.tracking import CameraTrajectory
 
 FRAMES = 30
 FRAGMENTS = [(0, 9), (10, 19), (20, 29)]

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from funrec.geometry import make_transform, rotation_about_axis, transform_points
-from funrec.gravity import estimate_gravity
+from funrec.surfaces.gravity import estimate_gravity
 
 # The floor's normal is fitted to thousands of points with 3 mm noise: well under 1 degree.
 UP_TOLERANCE_DEG = 1.0

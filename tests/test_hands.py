@@ -1,4 +1,4 @@
-"""Tests of funrec.hands: capture masks pass through, detection on the tiny synthetic capture.
+"""Tests of funrec.surfaces.hands: capture masks pass through, detection on the tiny synthetic capture.
 
 ``ground_truth_inputs`` builds the stage inputs of a generated capture from its ground truth
 (tests only; the library never reads gt/): camera poses mapped to a chosen twin world frame
@@ -15,14 +15,14 @@ import numpy.typing as npt
 import pytest
 import trimesh
 
-from funrec.capture import load_capture, read_mask
+from funrec.camera.tracking import CameraTrajectory
+from funrec.formats.capture import load_capture, read_mask
+from funrec.formats.ground_truth import read_ground_truth
+from funrec.formats.twin import ArticulatedPart, make_part
 from funrec.geometry.joints import joint_transform
 from funrec.geometry.transforms import invert_transform, transform_points
-from funrec.ground_truth import read_ground_truth
-from funrec.hands import HandConfig, detect_hands, part_poses
-from funrec.segmentation import PartMasks
-from funrec.tracking import CameraTrajectory
-from funrec.twin_format import ArticulatedPart, make_part
+from funrec.surfaces.hands import HandConfig, detect_hands, part_poses
+from funrec.surfaces.segmentation import PartMasks
 
 MIN_MEAN_IOU_TINY = 0.7
 """Mean per-frame IoU detection must reach on the tiny 80x60 capture without its masks (frames

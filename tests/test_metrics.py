@@ -1,4 +1,4 @@
-"""Known-answer and property tests of funrec.metrics (FORMATS.md section 5)."""
+"""Known-answer and property tests of funrec.bench.metrics (FORMATS.md section 5)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from scipy.spatial.transform import Rotation
 
-from funrec import metrics
+from funrec.bench import metrics
 from funrec.geometry.joints import joint_transforms
 from funrec.geometry.transforms import invert_transform, make_transform, rotation_about_axis, transform_points
 

@@ -6,10 +6,10 @@ import dataclasses
 
 import numpy as np
 
-from funrec.articulation import JointEvidence, PartEstimate
 from funrec.geometry.joints import joint_transforms
-from funrec.part_merge import canonical_part_points, merge_parts, merge_two, rest_state, same_part
-from funrec.point_tracks import PointTracks
+from funrec.parts.articulation import JointEvidence, PartEstimate
+from funrec.parts.part_merge import canonical_part_points, merge_parts, merge_two, rest_state, same_part
+from funrec.parts.point_tracks import PointTracks
 
 AXIS = np.array([0.0, 1.0, 0.0])
 PIVOT = np.array([0.0, 0.0, 1.8])

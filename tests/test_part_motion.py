@@ -9,11 +9,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 from test_articulation import SyntheticScene, errors, make_scene  # tests/ is on sys.path under pytest
 
-from funrec.articulation import PartEstimate, estimate_articulation
 from funrec.geometry.joints import joint_transforms
 from funrec.geometry.transforms import make_transform
-from funrec.joint_problem import JointProblem
-from funrec.part_motion import (
+from funrec.parts.articulation import PartEstimate, estimate_articulation
+from funrec.parts.joint_problem import JointProblem
+from funrec.parts.part_motion import (
     PartMotionConfig,
     _measure_edges,
     _solve_joint,

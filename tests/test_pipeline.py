@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from funrec.articulation import JointEvidence, PartEstimate
-from funrec.fragment_tracks import WindowTracks
-from funrec.fragments import Fragments, fragments_from_spans
+from funrec.parts.articulation import JointEvidence, PartEstimate
+from funrec.parts.fragment_tracks import WindowTracks
+from funrec.parts.fragments import Fragments, fragments_from_spans
+from funrec.parts.point_tracks import PointTracks
 from funrec.pipeline import ReconstructConfig, _final_fragments, _part_span, _rename_parts, _window
-from funrec.point_tracks import PointTracks
 
 FPS = 15.0
 
@@ -84,8 +84,8 @@ def test_part_span_joins_the_windows_of_a_merged_part() -> None:
 def test_reconstruct_smoke_captures_end_to_end(smoke_captures: dict[str, Path], tmp_path: Path) -> None:
     """The door capture gives one revolute part and one dynamic fragment near the true hold; the
     camera-only walk gives none; both twins have fragments.json and affordances.json."""
-    from funrec.evaluate import evaluate_twin
-    from funrec.fragment_metrics import score_twin_fragments
+    from funrec.bench.evaluate import evaluate_twin
+    from funrec.bench.fragment_metrics import score_twin_fragments
     from funrec.pipeline import reconstruct
 
     config = ReconstructConfig()

@@ -14,9 +14,9 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 from test_plan_scenes import PRISMATIC_CASE, REVOLUTE_CASE, write_gt_scene
 
-from funrec.affordances import Affordances, Interaction, PartAffordance, write_affordances
+from funrec.affordance.contacts import Affordances, Interaction, PartAffordance, write_affordances
 from funrec.errors import FunrecError, PlanningError
-from funrec.twin_format import TwinArticulation, make_part, write_articulation
+from funrec.formats.twin import TwinArticulation, make_part, write_articulation
 from funrec_robot import build_mujoco_model, default_robot_path, load_robot, robot_indices
 from funrec_robot.feasibility import kinematic_collisions
 from funrec_robot.plan import PlanConfig, plan_interaction
@@ -143,7 +143,7 @@ def _fixture_affordance(name: str, contact: list[float], T_world_grasp: np.ndarr
 
 
 def test_task_from_twin_maps_the_affordance_frame_into_the_scene(tmp_path) -> None:
-    """funrec-affordances/1 grasp frames have z = approach and x = handle axis (funrec.affordances); the task's
+    """funrec-affordances/1 grasp frames have z = approach and x = handle axis (funrec.affordance.contacts); the task's
     handle axis is that x, the demonstration is the first hold from its start, and all move with T_scene_twin."""
     part = make_part("part_0", "revolute", [0.0, 0.0, 1.0], [1.0, 2.0, 0.0], [0, 1], [0.0, 0.5], (0.0, 1.5))
     write_articulation(tmp_path / "articulation.json", TwinArticulation(frame_count=2, parts=(part,)))
@@ -173,7 +173,7 @@ def test_task_from_twin_without_affordances_grasps_the_mesh_and_says_so(tmp_path
     fallback grasp is on its front (y = -0.02), MESH_GRASP_INSET_M in from the free edge, at mid-height."""
     import trimesh
 
-    from funrec.camera_poses import write_camera_poses
+    from funrec.formats.camera_poses import write_camera_poses
     from funrec_robot.task_sources import MESH_GRASP_INSET_M
 
     (tmp_path / "meshes").mkdir()

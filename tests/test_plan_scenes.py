@@ -12,11 +12,11 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from funrec.camera_poses import write_camera_poses
-from funrec.ground_truth import GroundTruthPart, write_ground_truth_json
+from funrec.formats.camera_poses import write_camera_poses
+from funrec.formats.ground_truth import GroundTruthPart, write_ground_truth_json
+from funrec.formats.twin import make_part
 from funrec.synth import bench_suite
 from funrec.synth.sequence import plan_sequence
-from funrec.twin_format import make_part
 
 REVOLUTE_CASE = "rev_cabinet_left_00"
 """A cabinet door with a vertical bar handle, hinge on the left."""

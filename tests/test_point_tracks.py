@@ -1,4 +1,4 @@
-"""Tests of funrec.point_tracks on a rendered room with a cabinet door swinging open about a
+"""Tests of funrec.parts.point_tracks on a rendered room with a cabinet door swinging open about a
 known hinge (reveals the cabinet interior) and an independently moving hand."""
 
 from __future__ import annotations
@@ -15,10 +15,10 @@ from test_tracking import (  # the renderer lives beside the tracking tests; pyt
     write_scene,
 )
 
-from funrec.capture import load_capture
+from funrec.camera.tracking import CameraTrajectory
+from funrec.formats.capture import load_capture
 from funrec.geometry.transforms import invert_transform
-from funrec.point_tracks import PointTrackConfig, PointTracks, track_points
-from funrec.tracking import CameraTrajectory
+from funrec.parts.point_tracks import PointTrackConfig, PointTracks, track_points
 
 FRAMES = 30
 

@@ -12,12 +12,12 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from funrec.affordances import Affordances, Interaction, PartAffordance, write_affordances
+from funrec.affordance.contacts import Affordances, Interaction, PartAffordance, write_affordances
 from funrec.errors import FormatError
+from funrec.formats.twin import TwinArticulation, make_part, write_articulation
 from funrec.geometry.joints import joint_transform
 from funrec.geometry.transforms import make_transform, transform_points
 from funrec.query import QueryError, format_parts, grasp_frame, list_parts, load_affordances, query_text
-from funrec.twin_format import TwinArticulation, make_part, write_articulation
 
 AXIS, PIVOT = np.array([0.0, -1.0, 0.0]), np.array([0.3, 0.0, 1.2])
 RANGE = (0.0, 1.4)

@@ -9,8 +9,8 @@ import trimesh
 from PIL import Image
 from test_export_urdf import FAST_EXPORT, write_cabinet_twin
 
-from funrec.camera_poses import write_camera_poses
 from funrec.export.simulation import export_simulation
+from funrec.formats.camera_poses import write_camera_poses
 from funrec.geometry import make_transform
 from funrec.render import RenderConfig, render_twin
 

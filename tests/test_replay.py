@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from test_plan_scenes import PRISMATIC_CASE, write_gt_scene
 
-from funrec.affordances import Affordances, Interaction, PartAffordance, write_affordances
+from funrec.affordance.contacts import Affordances, Interaction, PartAffordance, write_affordances
 from funrec.errors import PlanningError
-from funrec.ground_truth import read_ground_truth
-from funrec.twin_format import TwinArticulation, write_articulation
+from funrec.formats.ground_truth import read_ground_truth
+from funrec.formats.twin import TwinArticulation, write_articulation
 from funrec_robot import default_robot_path
 from funrec_robot.check_record import require_passing_record
 from funrec_robot.replay import demonstrated_interactions, replay_twin
@@ -77,7 +77,7 @@ def test_a_twin_whose_floor_is_not_the_scenes_is_refused(twin, tmp_path) -> None
     its plans are refused there (before the fix such a plan passed its check with the base 0.9 m up)."""
     from types import SimpleNamespace
 
-    from funrec.camera_poses import read_camera_poses, write_camera_poses
+    from funrec.formats.camera_poses import read_camera_poses, write_camera_poses
     from funrec_robot.check import FLOOR_HEIGHT_TOLERANCE, T_scene_plan_from_gt
 
     twin_dir, gt = twin

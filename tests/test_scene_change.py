@@ -6,9 +6,9 @@ from pathlib import Path
 
 import numpy as np
 
-from funrec.capture import CaptureIntrinsics, CaptureWriter, load_capture
-from funrec.fragments import FragmentConfig
-from funrec.scene_change import scene_change
+from funrec.formats.capture import CaptureIntrinsics, CaptureWriter, load_capture
+from funrec.parts.fragments import FragmentConfig
+from funrec.parts.scene_change import scene_change
 
 INTRINSICS = CaptureIntrinsics(160, 120, 120.0, 120.0, 79.5, 59.5)
 FRAMES = 12

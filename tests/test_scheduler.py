@@ -8,9 +8,9 @@ import sys
 import numpy as np
 import pytest
 
-from funrec.batch import BatchConfig
+from funrec.bench.batch import BatchConfig
+from funrec.bench.scheduler import run_funrec_child, run_jobs
 from funrec.errors import FunrecError
-from funrec.scheduler import run_funrec_child, run_jobs
 
 
 def _square(x: int, offset: int, active: set[int] | None = None) -> tuple[int, bool]:

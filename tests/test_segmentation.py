@@ -1,4 +1,4 @@
-"""Tests of funrec.segmentation and funrec.motion_evidence: mask storage, input validation, track
+"""Tests of funrec.surfaces.segmentation and funrec.surfaces.motion_evidence: mask storage, input validation, track
 and pixel motion evidence on known geometry, and mask IoU against synthetic ground truth when the
 stage is fed true inputs and when it is fed the estimates of stages 1, 2, 3 and 5."""
 
@@ -13,16 +13,16 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from funrec.capture import Capture, load_capture, read_mask
+from funrec.camera.tracking import CameraTrajectory
 from funrec.errors import ReconstructionError
+from funrec.formats.capture import Capture, load_capture, read_mask
+from funrec.formats.ground_truth import GroundTruth, read_ground_truth
 from funrec.geometry.camera import backproject, project
 from funrec.geometry.joints import joint_transforms
 from funrec.geometry.transforms import invert_transform, transform_points
-from funrec.ground_truth import GroundTruth, read_ground_truth
-from funrec.part_motion import PartMotion
-from funrec.point_tracks import PointTracks
-from funrec.segmentation import PartMasks, SegmentationConfig, decode_mask, encode_mask, segment_parts
-from funrec.tracking import CameraTrajectory
+from funrec.parts.part_motion import PartMotion
+from funrec.parts.point_tracks import PointTracks
+from funrec.surfaces.segmentation import PartMasks, SegmentationConfig, decode_mask, encode_mask, segment_parts
 
 TRACK_VISIBLE_TOL_M = 0.03
 """A simulated track is visible where the observed (noisy) depth is within 3 cm of it: ~6 sigma of
@@ -189,7 +189,7 @@ def _translation(t_world: np.ndarray) -> np.ndarray:
 def test_classify_tracks_decides_only_where_the_part_moved() -> None:
     """Prismatic part resting for 16 frames, then moving 0.1 m per frame along x for 4 frames.
     Depth-like noise of 2 mm (well below the 2 cm tolerances) on every observation."""
-    from funrec.motion_evidence import classify_tracks
+    from funrec.surfaces.motion_evidence import classify_tracks
 
     F = 20
     states = np.concatenate([np.zeros(16), [0.1, 0.2, 0.3, 0.4]])
@@ -232,7 +232,7 @@ def test_depth_evidence_finds_the_moved_plate_and_the_static_wall() -> None:
     """A 0.4 m plate at 2 m in front of a wall at 3 m moves by (0.5, 0, -0.4) m (sideways and
     towards the camera). Plate pixels see the wall through their old place and the plate at their
     new one: part. Wall pixels moved with the plate would float 0.4 m in front of the wall: static."""
-    from funrec.motion_evidence import DepthReference, depth_evidence
+    from funrec.surfaces.motion_evidence import DepthReference, depth_evidence
 
     K = np.array([[60.0, 0.0, 39.5], [0.0, 60.0, 29.5], [0.0, 0.0, 1.0]])
     shape = (60, 80)
@@ -282,10 +282,10 @@ class EstimatedRun:
 @pytest.fixture(scope="session", params=["smoke_rev_00", "smoke_pri_00"])
 def estimated_run(request: pytest.FixtureRequest) -> EstimatedRun:
     """~1 min per capture (plus ~45 s to generate it the first time)."""
-    from funrec.articulation import InteractionEvidence, estimate_articulation
-    from funrec.part_motion import refine_part_motion
-    from funrec.point_tracks import track_points
-    from funrec.tracking import track_camera
+    from funrec.camera.tracking import track_camera
+    from funrec.parts.articulation import InteractionEvidence, estimate_articulation
+    from funrec.parts.part_motion import refine_part_motion
+    from funrec.parts.point_tracks import track_points
 
     capture = load_capture(smoke_sequence(request.config.cache.mkdir("funrec_synth"), request.param))
     trajectory = track_camera(capture)

@@ -10,12 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from funrec.capture import load_capture, read_mask
 from funrec.errors import FunrecError
+from funrec.formats.capture import load_capture, read_mask
+from funrec.formats.ground_truth import read_ground_truth
 from funrec.geometry.camera import project
 from funrec.geometry.joints import joint_transform
 from funrec.geometry.transforms import invert_transform, transform_points
-from funrec.ground_truth import read_ground_truth
 from funrec.synth import (
     Interaction,
     PartRequest,

@@ -1,4 +1,4 @@
-"""Tests of funrec.tracking: camera poses on rendered planar scenes with a moving door and
+"""Tests of funrec.camera.tracking: camera poses on rendered planar scenes with a moving door and
 hand, and on ten real TUM fr1_xyz Kinect frames against motion capture."""
 
 from __future__ import annotations
@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from funrec import tracking
-from funrec.capture import CaptureIntrinsics, CaptureWriter, load_capture
+from funrec.camera import tracking
+from funrec.camera.tracking import CameraTrajectory, TrackingConfig, track_camera
 from funrec.errors import ReconstructionError
+from funrec.formats.capture import CaptureIntrinsics, CaptureWriter, load_capture
 from funrec.geometry.transforms import invert_transform, make_transform, rotation_about_axis
-from funrec.tracking import CameraTrajectory, TrackingConfig, track_camera
 
 TUM_DIR = Path("/work/shared/realdata/tum_fr1_xyz_10")
 TUM_K = np.array([[517.3, 0.0, 318.6], [0.0, 516.5, 255.3], [0.0, 0.0, 1.0]])
@@ -365,7 +365,7 @@ def test_synthetic_smoke_suite(tmp_path_factory):
     noise, ~8 cm of camera motion per frame): measured ATE 3.5 / 10.7 / 13.0 mm."""
     if importlib.util.find_spec("funrec.synth") is None:
         pytest.skip("synthetic generator not available")
-    from funrec.camera_poses import read_camera_poses
+    from funrec.formats.camera_poses import read_camera_poses
     from funrec.synth import generate_suite
 
     for root in generate_suite(tmp_path_factory.mktemp("smoke"), suite="smoke"):

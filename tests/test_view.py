@@ -12,11 +12,11 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from funrec.affordances import Affordances, Interaction, PartAffordance, write_affordances
-from funrec.camera_poses import write_camera_poses
+from funrec.affordance.contacts import Affordances, Interaction, PartAffordance, write_affordances
+from funrec.formats.camera_poses import write_camera_poses
+from funrec.formats.twin import TwinArticulation, make_part, write_articulation
 from funrec.geometry.joints import joint_transform
 from funrec.geometry.transforms import make_transform
-from funrec.twin_format import TwinArticulation, make_part, write_articulation
 
 viser = pytest.importorskip("viser")
 

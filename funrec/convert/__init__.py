@@ -78,7 +78,7 @@ def _converter(name: str) -> Callable[[Path, Path, ConvertConfig], ConversionRep
 def convert(source: str | Path, out_dir: str | Path, config: ConvertConfig = ConvertConfig()) -> ConversionReport:  # noqa: B008 (frozen, immutable default)
     """Convert a recording into a capture folder.
 
-    The folder is written to a temporary sibling, validated with ``funrec.capture.load_capture`` and
+    The folder is written to a temporary sibling, validated with ``funrec.formats.capture.load_capture`` and
     renamed to ``out_dir`` only when complete; ``out_dir/conversion.json`` holds the report.
 
     Args:

@@ -11,7 +11,6 @@ from typing import Any
 import cv2
 import numpy as np
 
-from funrec.capture import CaptureIntrinsics
 from funrec.convert.association import associate_nearest, stream_pairs
 from funrec.convert.camera_model import LensCamera, remap_colour, resize_colour, scale_pinhole
 from funrec.convert.config import ConvertConfig
@@ -19,6 +18,7 @@ from funrec.convert.output import CaptureOutput
 from funrec.convert.registration import register_depth
 from funrec.convert.report import ConversionReport
 from funrec.errors import CaptureError, FunrecError
+from funrec.formats.capture import CaptureIntrinsics
 from funrec.geometry.transforms import invert_transform, make_transform
 from funrec.typed import FloatArray
 

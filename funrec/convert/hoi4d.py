@@ -15,7 +15,6 @@ import cv2
 import numpy as np
 import trimesh
 
-from funrec.capture import CaptureIntrinsics
 from funrec.convert.camera_model import resize_colour, resize_depth, scale_pinhole
 from funrec.convert.config import ConvertConfig
 from funrec.convert.hoi4d_annotations import (
@@ -30,6 +29,7 @@ from funrec.convert.hoi4d_annotations import (
 from funrec.convert.output import CaptureOutput
 from funrec.convert.report import ConversionReport
 from funrec.errors import CaptureError, FunrecError
+from funrec.formats.capture import CaptureIntrinsics
 
 HOI4D_DEPTH_SCALE = 1000.0
 """HOI4D depth holds millimetres."""

@@ -19,10 +19,10 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from funrec.errors import CaptureError
+from funrec.formats.ground_truth import GroundTruthPart
+from funrec.formats.twin import make_part
 from funrec.geometry.fitting import fit_prismatic_motions, fit_revolute_motions
 from funrec.geometry.transforms import invert_transform, make_transform
-from funrec.ground_truth import GroundTruthPart
-from funrec.twin_format import make_part
 from funrec.typed import FloatArray
 
 BASE_LABELS = ("Lockerbody", "Safebox", "bucket", "Dustbinbase", "Laptopkeyboard")

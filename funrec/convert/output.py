@@ -1,5 +1,5 @@
 """The capture folder a converter writes: staged in a temporary sibling folder, validated with
-``load_capture`` and renamed into place only when complete (:mod:`funrec.staged_folder`, as ``export.twin.TwinWriter``)."""
+``load_capture`` and renamed into place only when complete (:mod:`funrec.formats.staged_folder`, as ``export.twin.TwinWriter``)."""
 
 from __future__ import annotations
 
@@ -13,13 +13,13 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from funrec.camera_poses import write_camera_poses
-from funrec.capture import CaptureIntrinsics, CaptureWriter, load_capture
 from funrec.convert.config import ConvertConfig
 from funrec.convert.report import ConversionReport, DroppedFrame, find_gaps
 from funrec.errors import CaptureError, FunrecError
-from funrec.ground_truth import GroundTruthPart, write_ground_truth_json
-from funrec.staged_folder import discard_folder, publish_folder, stage_folder
+from funrec.formats.camera_poses import write_camera_poses
+from funrec.formats.capture import CaptureIntrinsics, CaptureWriter, load_capture
+from funrec.formats.ground_truth import GroundTruthPart, write_ground_truth_json
+from funrec.formats.staged_folder import discard_folder, publish_folder, stage_folder
 from funrec.typed import FloatArray
 
 log = logging.getLogger(__name__)
@@ -29,7 +29,7 @@ class CaptureOutput:
     """Context manager that collects a converted capture in a temporary folder.
 
     Frames are written one at a time (nothing is held); on a clean exit the report is written to
-    ``conversion.json``, the folder is validated with :func:`funrec.capture.load_capture` and renamed
+    ``conversion.json``, the folder is validated with :func:`funrec.formats.capture.load_capture` and renamed
     to ``out_dir``. On an exception, or if no frame was written, the temporary folder is deleted and
     ``out_dir`` is left as it was.
 

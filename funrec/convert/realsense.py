@@ -11,7 +11,6 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from funrec.capture import CaptureIntrinsics
 from funrec.convert.association import associate_nearest
 from funrec.convert.camera_model import LensCamera, remap_colour, resize_colour, scale_pinhole
 from funrec.convert.config import ConvertConfig
@@ -27,6 +26,7 @@ from funrec.convert.rosbag import (
     read_stamps,
 )
 from funrec.errors import CaptureError
+from funrec.formats.capture import CaptureIntrinsics
 from funrec.geometry.transforms import invert_transform, make_transform
 from funrec.typed import FloatArray
 

@@ -13,12 +13,12 @@ from typing import Any
 import cv2
 import numpy as np
 
-from funrec.capture import CaptureIntrinsics
 from funrec.convert.camera_model import resize_colour, resize_depth, scale_pinhole
 from funrec.convert.config import ConvertConfig
 from funrec.convert.output import CaptureOutput
 from funrec.convert.report import ConversionReport
 from funrec.errors import CaptureError, FunrecError
+from funrec.formats.capture import CaptureIntrinsics
 
 _FRAME = re.compile(r"^rgbd/(\d+)\.(jpg|depth|conf)$")
 

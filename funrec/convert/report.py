@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from funrec.capture import CaptureIntrinsics
+from funrec.formats.capture import CaptureIntrinsics
 
 
 @dataclass(frozen=True)

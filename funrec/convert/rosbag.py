@@ -10,7 +10,6 @@ from typing import Any
 import cv2
 import numpy as np
 
-from funrec.capture import CaptureIntrinsics
 from funrec.convert.association import associate_nearest, stream_pairs
 from funrec.convert.camera_model import (
     LensCamera,
@@ -24,6 +23,7 @@ from funrec.convert.config import ConvertConfig
 from funrec.convert.output import CaptureOutput
 from funrec.convert.report import ConversionReport
 from funrec.errors import CaptureError, FunrecError
+from funrec.formats.capture import CaptureIntrinsics
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 CAMERA_INFO_TYPE = "sensor_msgs/msg/CameraInfo"

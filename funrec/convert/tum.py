@@ -13,7 +13,6 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from funrec.capture import CaptureIntrinsics
 from funrec.convert.association import associate_nearest
 from funrec.convert.camera_model import (
     LensCamera,
@@ -27,6 +26,7 @@ from funrec.convert.config import ConvertConfig
 from funrec.convert.output import CaptureOutput
 from funrec.convert.report import ConversionReport
 from funrec.errors import CaptureError
+from funrec.formats.capture import CaptureIntrinsics
 from funrec.geometry.transforms import check_transform, make_transform
 from funrec.typed import FloatArray
 

@@ -27,8 +27,8 @@ from funrec.export.sim_model import (
     write_mesh_files,
 )
 from funrec.export.urdf import write_urdf
+from funrec.formats.twin import ArticulatedPart, read_articulation
 from funrec.geometry.transforms import check_transform
-from funrec.twin_format import ArticulatedPart, read_articulation
 from funrec.typed import FloatArray
 
 log = logging.getLogger(__name__)

@@ -9,11 +9,11 @@ from types import TracebackType
 
 import numpy.typing as npt
 
-from funrec.camera_poses import write_camera_poses
-from funrec.capture import write_mask
 from funrec.errors import FunrecError
-from funrec.staged_folder import discard_folder, publish_folder, stage_folder
-from funrec.twin_format import TwinArticulation, write_articulation
+from funrec.formats.camera_poses import write_camera_poses
+from funrec.formats.capture import write_mask
+from funrec.formats.staged_folder import discard_folder, publish_folder, stage_folder
+from funrec.formats.twin import TwinArticulation, write_articulation
 
 log = logging.getLogger(__name__)
 

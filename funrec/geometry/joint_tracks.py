@@ -334,7 +334,7 @@ def _derivatives(joint_type: str, axis0: FloatArray, B: FloatArray, u: FloatArra
                  s: FloatArray, x: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Derivatives of J(s_n) x_n for n observations with the axis a = normalise(axis0 + B u)
     and the pivot q = q0 + B w: (n, 3, 4 or 2) by (u, w), (n, 3) by s_n, (n, 3, 3) by x_n
-    (the analytic form funrec.part_motion uses for its track term)."""
+    (the analytic form funrec.parts.part_motion uses for its track term)."""
     n = len(s)
     da_du = (np.eye(3) - np.outer(a, a)) @ B / np.linalg.norm(axis0 + B @ u)
     if joint_type == "revolute":

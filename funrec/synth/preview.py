@@ -8,10 +8,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from funrec.capture import load_capture, read_mask
+from funrec.formats.capture import load_capture, read_mask
+from funrec.formats.ground_truth import read_ground_truth
 from funrec.geometry.camera import project
 from funrec.geometry.transforms import invert_transform, transform_points
-from funrec.ground_truth import read_ground_truth
 from funrec.typed import UInt8Array
 
 PART_COLORS = ((255, 80, 60), (60, 200, 255), (250, 220, 40), (200, 80, 255))

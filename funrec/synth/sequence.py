@@ -19,10 +19,11 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
-from funrec.camera_poses import write_camera_poses
-from funrec.capture import CaptureIntrinsics, CaptureWriter, write_mask
 from funrec.errors import FunrecError
-from funrec.ground_truth import GroundTruthPart, write_ground_truth_json
+from funrec.formats.camera_poses import write_camera_poses
+from funrec.formats.capture import CaptureIntrinsics, CaptureWriter, write_mask
+from funrec.formats.ground_truth import GroundTruthPart, write_ground_truth_json
+from funrec.formats.twin import make_part
 from funrec.synth.hand import forearm_geoms, hand_geoms, skin_color
 from funrec.synth.layout import sample_layout
 from funrec.synth.mjcf import CAMERA_NAME, HAND_BODIES, TEXTURE_DIR, RenderRig, scene_to_mjcf
@@ -38,7 +39,6 @@ from funrec.synth.render import (
 from funrec.synth.scene import Body, Front, Material, Scene, map_bodies
 from funrec.synth.sensor import SensorNoise, noisy_depth, noisy_rgb
 from funrec.synth.spec import SequenceSpec
-from funrec.twin_format import make_part
 
 if TYPE_CHECKING:
     import mujoco

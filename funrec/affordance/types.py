@@ -1,0 +1,238 @@
+"""Affordance types: the settings of :func:`funrec.affordance.contacts.find_affordances` and its result
+(held parts with contact point, grasp frame and demonstrated motion); see :mod:`funrec.affordance.contacts`
+for the conventions and :mod:`funrec.formats.affordances` for affordances.json.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+import trimesh
+
+from funrec.geometry.joints import JOINT_TYPES
+from funrec.surfaces.hands import HAND_SOURCES, HandConfig
+from funrec.typed import FloatArray, IntArray
+
+AFFORDANCES_FORMAT = "funrec-affordances/1"
+"""Format tag written into and required from affordances.json."""
+AFFORDANCES_FILE = "affordances.json"
+"""File name of the affordances in a twin folder."""
+
+REFERENCE_WIDTH_PX = 640
+"""Image width at which pixel sizes of :class:`AffordanceConfig` are given."""
+
+PartSurface = trimesh.Trimesh | trimesh.PointCloud | npt.ArrayLike
+"""A part's surface at its canonical state, world frame: a mesh, a point cloud or (N, 3) points."""
+
+
+@dataclass(frozen=True)
+class AffordanceConfig:
+    """Settings of :func:`find_affordances`; lengths in metres, durations in seconds."""
+
+    hands: HandConfig = field(default_factory=HandConfig)
+    """Hand detection, used when no hand masks are passed in."""
+    surface_spacing_m: float = 0.005
+    """Mesh faces are sampled with one point per this spacing squared (as the ground truth's
+    5 mm points); point clouds are used as they are."""
+    hand_erosion_px: int = 2
+    """Hand masks are eroded by this many pixels (at 640 px image width, scaled with the width)
+    before lifting: edge depth mixes hand and scene."""
+    hand_stride_px: int = 2
+    """Every k-th hand pixel in each direction is lifted (at 640 px image width, scaled with the
+    width; a hand covers thousands of pixels)."""
+    distal_quantile: float = 0.98
+    """The hand's far end: points whose distance from the camera is within ``distal_band_m`` of
+    this quantile of all hand points' distances. The egocentric arm reaches away from the eyes,
+    so its far end is the gripping hand, whichever side of it the camera sees."""
+    distal_band_m: float = 0.04
+    """Depth of the hand's far end, metres (about a hand's thickness)."""
+    contact_distance_m: float = 0.08
+    """Far-end points within this of the part surface put the hand at the part. The camera sees
+    the back of the hand, 4-6 cm off the surface it grips (measured on the synthetic bench)."""
+    min_contact_points: int = 5
+    """Fewest far-end points near the part for a frame to count as touching it."""
+    hold_radius_m: float = 0.04
+    """A touching frame is a hold when the far end's centroid, in the part's canonical frame, is
+    within this of the grip position (where it stays longest): a held hand moves with the part."""
+    max_gap_s: float = 0.2
+    """Holds separated by shorter gaps (missed detections) are merged."""
+    min_hold_s: float = 0.3
+    """Shorter holds are dropped (brushing past a part)."""
+    min_motion_rad: float = 0.05
+    """A hold of a revolute part is an interaction only if the part turns this much during it."""
+    min_motion_m: float = 0.02
+    """A hold of a prismatic part is an interaction only if the part slides this much during it."""
+    vote_top_fraction: float = 0.5
+    """Surface points with at least this fraction of the top contact vote form the contact core,
+    whose vote-weighted centre is the first contact estimate."""
+    region_fraction: float = 0.25
+    """Surface points with at least this fraction of the top vote form the contact region."""
+    region_max_points: int = 2000
+    """Most points written for the contact region (highest weights kept)."""
+    search_radius_m: float = 0.2
+    """Radius around the first estimate in which the front surface is fitted and the handle is
+    searched: holds a door handle (14 cm) whole when the first estimate is off by 5 cm."""
+    handle_search_radius_m: float = 0.3
+    """Radius around the first estimate in which handle geometry is searched (the front plane is
+    fitted within ``search_radius_m``): holds a 30 cm drawer bar whole when the first estimate is
+    off by 10 cm along it; a handle reaching out of it counts as long (``max_handle_length_m``)."""
+    front_cell_m: float = 0.005
+    """Cell size of the front-layer test (as seen from the hand), metres."""
+    front_depth_m: float = 0.015
+    """Points deeper than this behind the front-most point of their cell are hidden (the inner
+    side of a door, drawer walls, bins) and take no part in the surface fit."""
+    plane_tolerance_m: float = 0.005
+    """RANSAC inlier distance of the front plane: a few mm of fused-mesh noise."""
+    plane_hypotheses: int = 200
+    """RANSAC hypotheses for the front plane."""
+    front_min_width_m: float = 0.06
+    """A layer of points parallel to the RANSAC plane and in front of it (up to
+    ``handle_max_height_m``) is the part's front, rather than handle geometry, when it is this
+    wide across (5-95 % range along its narrow in-plane direction; bars and lips are 1-3 cm)
+    ..."""
+    front_min_area_m2: float = 0.01
+    """... and covers this area (cells of ``front_cell_m``; a 30 x 2 cm bar covers 0.006 m^2)."""
+    max_handle_length_m: float = 0.35
+    """A handle piece up to this long (along its principal direction) gives the contact at its
+    centre: the first estimate's error runs mostly along the handle (2-4 cm on the synthetic
+    bench), while its centre is where a hand or gripper holds it best. On a longer handle (an
+    oven bar, a fridge's long bar), or one that reaches out of ``handle_search_radius_m``, the contact
+    is the point of the handle's axis level with the hand's far end, where the hand was."""
+    handle_min_height_m: float = 0.008
+    """Points standing this far out of the front plane are handle geometry (bars stand 3 cm out,
+    knobs 3 cm, recessed grips' lips 1-2 cm; 8 mm is above the fit noise)."""
+    handle_max_height_m: float = 0.08
+    """... and no farther (anything farther is not a handle)."""
+    handle_link_m: float = 0.012
+    """Handle points closer than this are linked into one piece (2-3 surface spacings)."""
+    min_handle_points: int = 5
+    """Fewest handle points for the contact to be snapped to the handle."""
+    handle_anisotropy: float = 2.0
+    """The handle's principal direction gives the grasp x axis when its extent ratio (square root
+    of the eigenvalue ratio) exceeds this; otherwise a fallback: the joint axis for revolute
+    parts (bars on doors run along the hinge), the wider direction of the front for prismatic."""
+    observe_frames: int = 8
+    """Frames outside the holds whose depth adds to the part surface around the contact before the
+    handle is searched: the hand hides the handle while it is held, so a part fused from the
+    frames in which it moves often lacks it (a third of the points near the handle, measured)."""
+    observe_window_s: float = 4.0
+    """... chosen evenly among the frames within this time of a hold in which the part rests at
+    its canonical state (the contact moved less than ``observe_still_m``; the handle is seen
+    before the grasp) or has moved it at least ``observe_min_displacement_m`` (after the release).
+    The points are kept where they lie, seen along the front's normal, inside the part surface's
+    outline with holes up to ``observe_fill_m`` filled, which leaves out the static scene."""
+    observe_min_views: int = 2
+    """An observed voxel (``surface_spacing_m``) counts when this many of the frames saw it."""
+    observe_still_m: float = 0.005
+    """See ``observe_window_s``."""
+    observe_min_displacement_m: float = 0.25
+    """See ``observe_window_s``."""
+    observe_fill_m: float = 0.12
+    """See ``observe_window_s``: a hole the hand left in the fused part (its size, measured)."""
+    footprint_cell_m: float = 0.01
+    """Cell size of the part outline test, metres."""
+    path_samples: int = 21
+    """States sampled over the joint range for the contact path."""
+    seed: int = 0
+    """Seed of the surface sampling and the plane RANSAC (results are deterministic)."""
+
+    def __post_init__(self) -> None:
+        positive = (self.surface_spacing_m, self.distal_band_m, self.contact_distance_m, self.hold_radius_m,
+                    self.search_radius_m, self.front_cell_m, self.plane_tolerance_m, self.handle_link_m)
+        if min(positive) <= 0 or not 0.0 < self.distal_quantile <= 1.0 or self.hand_stride_px < 1:
+            raise ValueError(f"AffordanceConfig needs positive lengths, 0 < distal_quantile <= 1 and hand_stride_px >= 1, got {self}")
+        if not 0.0 < self.vote_top_fraction <= 1.0 or not 0.0 < self.region_fraction <= 1.0 or self.path_samples < 2:
+            raise ValueError(f"AffordanceConfig needs fractions in (0, 1] and path_samples >= 2, got {self}")
+
+    @property
+    def handle_radius_m(self) -> float:
+        """Radius around the first estimate that holds both the front fit and the handle search."""
+        return max(self.search_radius_m, self.handle_search_radius_m)
+
+
+@dataclass(frozen=True)
+class Interaction:
+    """One hold of a part: the demonstrated joint trajectory."""
+
+    frames: IntArray
+    """(n,) consecutive frame indices of the hold."""
+    times_s: FloatArray
+    """(n,) time of each frame from the capture start, seconds (frame / fps)."""
+    states: FloatArray
+    """(n,) joint state of the part at each frame, radians or metres from the canonical state."""
+
+    def __post_init__(self) -> None:
+        n = len(self.frames)
+        if n == 0 or np.shape(self.frames) != (n,) or np.shape(self.times_s) != (n,) or np.shape(self.states) != (n,):
+            raise ValueError(f"frames, times_s and states must be equal-length non-empty (n,), got "
+                             f"{np.shape(self.frames)}, {np.shape(self.times_s)}, {np.shape(self.states)}")
+
+
+@dataclass(frozen=True)
+class PartAffordance:
+    """Where and how the hand held one part (world frame, part at its canonical state)."""
+
+    name: str
+    """Part name, as in articulation.json."""
+    joint_type: str
+    """"revolute" or "prismatic"."""
+    contact_point: FloatArray
+    """(3,) robust centre of the contact, world frame at the canonical state, metres."""
+    T_world_grasp: FloatArray
+    """(4, 4) grasp frame at the canonical state (z approach, x along the handle, y = z x x)."""
+    handle_found: bool
+    """True when the contact point was snapped to protruding handle geometry."""
+    interactions: tuple[Interaction, ...]
+    """Holds in time order (at least one)."""
+    region_points: FloatArray
+    """(M, 3) part surface points in contact, world frame at the canonical state."""
+    region_weights: FloatArray
+    """(M,) contact weight of each region point in (0, 1]."""
+    path_states: FloatArray
+    """(S,) joint states sampled over the part's range, radians or metres."""
+    path_points: FloatArray
+    """(S, 3) the contact point at each of ``path_states``, world frame."""
+
+    def __post_init__(self) -> None:
+        if self.joint_type not in JOINT_TYPES:
+            raise ValueError(f"joint_type must be one of {JOINT_TYPES}, got {self.joint_type!r}")
+        if np.shape(self.contact_point) != (3,) or np.shape(self.T_world_grasp) != (4, 4):
+            raise ValueError(f"contact_point must be (3,) and T_world_grasp (4, 4), got {np.shape(self.contact_point)}, {np.shape(self.T_world_grasp)}")
+        M, S = len(self.region_points), len(self.path_states)
+        if np.shape(self.region_points) != (M, 3) or np.shape(self.region_weights) != (M,):
+            raise ValueError(f"region_points must be (M, 3) and region_weights (M,), got {np.shape(self.region_points)}, {np.shape(self.region_weights)}")
+        if np.shape(self.path_states) != (S,) or np.shape(self.path_points) != (S, 3):
+            raise ValueError(f"path_states must be (S,) and path_points (S, 3), got {np.shape(self.path_states)}, {np.shape(self.path_points)}")
+        if not self.interactions:
+            raise ValueError("a part affordance needs at least one interaction")
+
+
+@dataclass(frozen=True)
+class Affordances:
+    """Hand-contact affordances of a twin (contents of affordances.json)."""
+
+    parts: tuple[PartAffordance, ...]
+    """One entry per part the hand was seen holding while it moved."""
+    missing: tuple[tuple[str, str], ...]
+    """(part name, reason) of each articulated part without an affordance."""
+    hand_source: str
+    """"capture" or "detected": where the hand masks came from."""
+    fps: float
+    """Capture frame rate, frames per second (times_s = frame / fps)."""
+
+    def __post_init__(self) -> None:
+        if self.hand_source not in HAND_SOURCES:
+            raise ValueError(f"hand_source must be one of {HAND_SOURCES}, got {self.hand_source!r}")
+        names = [p.name for p in self.parts] + [name for name, _ in self.missing]
+        if len(set(names)) != len(names):
+            raise ValueError(f"part names repeat: {names}")
+
+    def part(self, name: str) -> PartAffordance | None:
+        """The affordance of part ``name``, or None if it has none."""
+        return next((p for p in self.parts if p.name == name), None)
+
+
+
+__all__ = ["AFFORDANCES_FILE", "AFFORDANCES_FORMAT", "REFERENCE_WIDTH_PX", "AffordanceConfig", "Affordances", "Interaction", "PartAffordance", "PartSurface"]

@@ -1,0 +1,1 @@
+"""Surface stages: hands, motion evidence, part masks, TSDF fusion and gravity."""
