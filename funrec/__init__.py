@@ -1,21 +1,53 @@
-"""FunREC: functional digital twins of rooms from egocentric RGB-D interaction videos."""
+"""FunREC: functional digital twins of rooms from egocentric RGB-D interaction videos.
 
-from funrec.errors import CaptureError, FormatError, FunrecError
-from funrec.formats.capture import Capture, CaptureIntrinsics, CaptureWriter, load_capture
-from funrec.formats.twin import ArticulatedPart, TwinArticulation, read_articulation, write_articulation
+``funrec.reconstruct("capture", "twin")`` runs the whole reconstruction. Names are imported on
+first use, so reading a twin (:mod:`funrec.formats`) never loads the reconstruction's OpenCV,
+Open3D or scikit-learn.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from funrec.errors import CaptureError, FormatError, FunrecError, ReconstructionError
+    from funrec.formats.affordances import Affordances, PartAffordance, read_affordances
+    from funrec.formats.capture import Capture, CaptureIntrinsics, CaptureWriter, load_capture
+    from funrec.formats.fragments import Fragments, read_fragments
+    from funrec.formats.twin import ArticulatedPart, TwinArticulation, read_articulation, write_articulation
+    from funrec.pipeline import ReconstructConfig, ReconstructionSummary, reconstruct
 
 __version__ = "0.1.0"
 
-__all__ = [
-    "ArticulatedPart",
-    "Capture",
-    "CaptureError",
-    "CaptureIntrinsics",
-    "CaptureWriter",
-    "FormatError",
-    "FunrecError",
-    "TwinArticulation",
-    "load_capture",
-    "read_articulation",
-    "write_articulation",
-]
+_MODULE_OF = {
+    "CaptureError": "errors",
+    "FormatError": "errors",
+    "FunrecError": "errors",
+    "ReconstructionError": "errors",
+    "Affordances": "formats.affordances",
+    "PartAffordance": "formats.affordances",
+    "read_affordances": "formats.affordances",
+    "Capture": "formats.capture",
+    "CaptureIntrinsics": "formats.capture",
+    "CaptureWriter": "formats.capture",
+    "load_capture": "formats.capture",
+    "Fragments": "formats.fragments",
+    "read_fragments": "formats.fragments",
+    "ArticulatedPart": "formats.twin",
+    "TwinArticulation": "formats.twin",
+    "read_articulation": "formats.twin",
+    "write_articulation": "formats.twin",
+    "ReconstructConfig": "pipeline",
+    "ReconstructionSummary": "pipeline",
+    "reconstruct": "pipeline",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _MODULE_OF:
+        raise AttributeError(f"module 'funrec' has no attribute {name!r}")
+    return getattr(importlib.import_module(f"funrec.{_MODULE_OF[name]}"), name)
+
+
+__all__ = sorted(_MODULE_OF)

@@ -19,32 +19,26 @@ import numpy as np
 import numpy.typing as npt
 from threadpoolctl import threadpool_limits  # a dependency of scikit-learn
 
-from funrec.affordance.contacts import AffordanceConfig, find_affordances, write_affordances
+from funrec.affordance.contacts import AffordanceConfig, find_affordances
 from funrec.camera.tracking import TrackingConfig, track_camera
 from funrec.export.simulation import ExportConfig, export_simulation
 from funrec.export.twin import TwinWriter
+from funrec.formats.affordances import TWIN_HAND_MASKS, write_affordances
 from funrec.formats.capture import Capture, load_capture
+from funrec.formats.fragments import Fragment, Fragments, write_fragments
 from funrec.formats.twin import ArticulatedPart, TwinArticulation, make_part
 from funrec.geometry.transforms import transform_points
 from funrec.parts.articulation import ArticulationConfig, InteractionEvidence, PartEstimate, estimate_articulation
 from funrec.parts.camera_lock import CameraLockConfig, unlock_camera
 from funrec.parts.fragment_tracks import WindowTracks, join_windows, sub_capture, sub_trajectory, track_window
-from funrec.parts.fragments import (
-    Fragment,
-    FragmentConfig,
-    Fragments,
-    find_fragments,
-    fragments_from_spans,
-    motion_span,
-    write_fragments,
-)
+from funrec.parts.fragments import FragmentConfig, find_fragments, fragments_from_spans, motion_span
 from funrec.parts.part_merge import PartMergeConfig, canonical_part_points, merge_parts
 from funrec.parts.part_motion import PartMotion, PartMotionConfig, refine_part_motion
 from funrec.parts.point_tracks import PointTrackConfig
 from funrec.parts.scene_change import SceneChangeConfig, scene_change
 from funrec.surfaces.fusion import FusionConfig, fuse_tsdf
 from funrec.surfaces.gravity import GravityConfig, estimate_gravity
-from funrec.surfaces.hands import TWIN_HAND_MASKS, detect_hands, write_hand_masks
+from funrec.surfaces.hands import detect_hands, write_hand_masks
 from funrec.surfaces.segmentation import PartMasks, SegmentationConfig, segment_parts
 from funrec.typed import FloatArray
 

@@ -11,8 +11,8 @@ from typing import Any
 
 import numpy as np
 
-from funrec.affordance.contacts import AFFORDANCES_FILE, Affordances, read_affordances
 from funrec.errors import FunrecError
+from funrec.formats.affordances import AFFORDANCES_FILE, Affordances, read_affordances
 from funrec.formats.twin import ArticulatedPart, read_articulation
 from funrec.geometry.joints import joint_transform
 from funrec.typed import FloatArray

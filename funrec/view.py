@@ -16,10 +16,10 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from funrec.affordance.contacts import AFFORDANCES_FILE, Affordances, read_affordances
-from funrec.bench.evaluate import load_ply
 from funrec.errors import FunrecError
+from funrec.formats.affordances import AFFORDANCES_FILE, Affordances, read_affordances
 from funrec.formats.camera_poses import read_camera_poses
+from funrec.formats.meshes import load_ply
 from funrec.formats.twin import ArticulatedPart, read_articulation
 from funrec.geometry.joints import joint_transform
 

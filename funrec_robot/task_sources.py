@@ -241,7 +241,7 @@ def task_from_twin(
     Raises:
         FormatError: a missing or malformed file or field; PlanningError: unknown part or hold.
     """
-    from funrec.affordance.contacts import AFFORDANCES_FILE
+    from funrec.formats.affordances import AFFORDANCES_FILE
     from funrec.query import load_affordances
 
     root = Path(twin_dir)

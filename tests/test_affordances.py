@@ -21,21 +21,20 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from scipy.spatial.transform import Rotation
 
-from funrec.affordance.contacts import (
-    AFFORDANCES_FORMAT,
-    AffordanceConfig,
-    Affordances,
-    Interaction,
-    PartAffordance,
-    affordances_to_json,
-    find_affordances,
-    read_affordances,
-    write_affordances,
-)
+from funrec.affordance.contacts import AffordanceConfig, find_affordances
 from funrec.affordance.handle import front_plane, grasp_at_handle
 from funrec.bench.affordance_metrics import evaluate_affordances, format_affordance_evaluation
 from funrec.camera.tracking import CameraTrajectory
 from funrec.errors import FormatError
+from funrec.formats.affordances import (
+    AFFORDANCES_FORMAT,
+    Affordances,
+    Interaction,
+    PartAffordance,
+    affordances_to_json,
+    read_affordances,
+    write_affordances,
+)
 from funrec.formats.camera_poses import write_camera_poses
 from funrec.formats.capture import CaptureIntrinsics, CaptureWriter, load_capture
 from funrec.formats.twin import TwinArticulation, make_part, write_articulation

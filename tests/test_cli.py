@@ -67,8 +67,8 @@ def test_eval_of_the_oracle_twin_is_perfect(tiny_capture: Path, tmp_path: Path) 
 
 def _oracle_with_contact(tiny_capture: Path, twin: Path) -> tuple[Path, str, np.ndarray]:
     """The oracle twin of the tiny capture with an affordance exactly at the true handle."""
-    from funrec.affordance.contacts import Affordances, Interaction, PartAffordance, write_affordances
     from funrec.bench.baselines import write_oracle_twin
+    from funrec.formats.affordances import Affordances, Interaction, PartAffordance, write_affordances
     from funrec.formats.ground_truth import read_ground_truth
     from funrec.geometry.transforms import invert_transform, make_transform, transform_points
 

@@ -380,7 +380,7 @@ def test_oracle_on_a_synth_sequence_if_available(tmp_path):
 
 def _write_contact(twin: Path, contacts: dict[str, np.ndarray], hand_source: str = "detected") -> None:
     """affordances.json with one held part per entry, contact point (twin world, canonical state)."""
-    from funrec.affordance.contacts import Affordances, Interaction, PartAffordance, write_affordances
+    from funrec.formats.affordances import Affordances, Interaction, PartAffordance, write_affordances
 
     parts = []
     for name, contact in contacts.items():

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from funrec.bench.fragment_metrics import score_fragments, score_twin_fragments, true_intervals
-from funrec.parts.fragments import Fragments, fragments_from_spans, write_fragments
+from funrec.formats.fragments import Fragments, write_fragments
+from funrec.parts.fragments import fragments_from_spans
 
 FPS = 15.0
 

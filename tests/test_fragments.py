@@ -9,16 +9,14 @@ import numpy as np
 import pytest
 
 from funrec.errors import FormatError
+from funrec.formats.fragments import Fragments, read_fragments, write_fragments
 from funrec.parts.fragments import (
     FragmentConfig,
-    Fragments,
     dynamic_spans,
     evidence_span,
     find_fragments,
     fragments_from_spans,
     motion_span,
-    read_fragments,
-    write_fragments,
 )
 
 FPS = 15.0

@@ -8,9 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from funrec.formats.fragments import Fragments
 from funrec.parts.articulation import JointEvidence, PartEstimate
 from funrec.parts.fragment_tracks import WindowTracks
-from funrec.parts.fragments import Fragments, fragments_from_spans
+from funrec.parts.fragments import fragments_from_spans
 from funrec.parts.point_tracks import PointTracks
 from funrec.pipeline import ReconstructConfig, _final_fragments, _part_span, _rename_parts, _window
 

@@ -14,8 +14,8 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 from test_plan_scenes import PRISMATIC_CASE, REVOLUTE_CASE, write_gt_scene
 
-from funrec.affordance.contacts import Affordances, Interaction, PartAffordance, write_affordances
 from funrec.errors import FunrecError, PlanningError
+from funrec.formats.affordances import Affordances, Interaction, PartAffordance, write_affordances
 from funrec.formats.twin import TwinArticulation, make_part, write_articulation
 from funrec_robot import build_mujoco_model, default_robot_path, load_robot, robot_indices
 from funrec_robot.feasibility import kinematic_collisions

@@ -12,8 +12,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from funrec.affordance.contacts import Affordances, Interaction, PartAffordance, write_affordances
 from funrec.errors import FormatError
+from funrec.formats.affordances import Affordances, Interaction, PartAffordance, write_affordances
 from funrec.formats.twin import TwinArticulation, make_part, write_articulation
 from funrec.geometry.joints import joint_transform
 from funrec.geometry.transforms import make_transform, transform_points

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from test_plan_scenes import PRISMATIC_CASE, write_gt_scene
 
-from funrec.affordance.contacts import Affordances, Interaction, PartAffordance, write_affordances
 from funrec.errors import PlanningError
+from funrec.formats.affordances import Affordances, Interaction, PartAffordance, write_affordances
 from funrec.formats.ground_truth import read_ground_truth
 from funrec.formats.twin import TwinArticulation, write_articulation
 from funrec_robot import default_robot_path

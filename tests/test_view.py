@@ -12,7 +12,7 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from funrec.affordance.contacts import Affordances, Interaction, PartAffordance, write_affordances
+from funrec.formats.affordances import Affordances, Interaction, PartAffordance, write_affordances
 from funrec.formats.camera_poses import write_camera_poses
 from funrec.formats.twin import TwinArticulation, make_part, write_articulation
 from funrec.geometry.joints import joint_transform

@@ -1,53 +1,10 @@
 """Hand-contact affordances: where the hand held each articulated part, as a contact region, a
 contact point and a grasp frame on the part at its canonical state, with the demonstrated joint
-motion; and affordances.json, their file in the twin folder.
+motion.
 
-affordances.json (``"format": "funrec-affordances/1"``), every position in the twin's world frame
-with the part at its canonical state (state 0, the pose of ``meshes/part_k.ply``)::
-
-    {
-      "format": "funrec-affordances/1",
-      "hand_source": "detected",          # "capture" (masks/hand/) or "detected" (funrec.surfaces.hands)
-      "fps": 15.0,                         # capture frame rate: times_s = frame / fps
-      "parts": [
-        {
-          "name": "part_0",                # as in articulation.json
-          "joint_type": "revolute",        # as in articulation.json
-          "contact_point": [x, y, z],      # where the hand held the part, metres
-          "T_world_grasp": [[4 x 4]],      # grasp frame at the canonical state, row-major
-          "handle_found": true,            # contact snapped to protruding handle geometry
-          "interactions": [                # one per hold, in time order
-            {"frames": [i, ...], "times_s": [t, ...], "states": [s, ...]}
-          ],
-          "contact_region": {"points": [[x, y, z], ...], "weights": [w, ...]},
-          "contact_path": {"states": [s, ...], "points": [[x, y, z], ...]}
-        }
-      ],
-      "missing": [{"name": "part_1", "reason": "..."}]
-    }
-
-- ``contact_point``: the centre of the handle the hand held (``handle_found``: the piece of
-  geometry standing out of the front nearest to the hand's contact; on a handle longer than
-  35 cm the point of its axis level with the hand), else the centre of the contact core.
-- ``T_world_grasp``: origin at the contact point; z is the approach direction, from the hand's
-  side into the part's front surface (minus the outward surface normal); x runs along the
-  handle (principal direction of the handle geometry, or a fallback, see
-  :class:`AffordanceConfig`); y = z cross x is across the handle, the finger-closing axis of a
-  parallel gripper (funrec_robot's grasp frame: z approach, y finger axis), so a gripper whose
-  grasp frame is aligned with it closes across the bar. Signs: of x and y, the one closer to
-  the camera's up direction during the hold points up.
-- At joint state ``s`` the grasp is ``joint_transform(s) @ T_world_grasp`` (FORMATS.md section 2
-  joint transforms; :func:`funrec.query.grasp_frame`).
-- ``interactions``: consecutive frames in which the hand held the part (its distal end stayed
-  at the grip in the part's frame) and the part moved; ``states`` are the part's joint states
-  there (interpolated between tracked frames, held constant outside them).
-- ``contact_region``: part surface points (canonical state) near the gripping end of the hand
-  during the holds, ``weights`` in (0, 1] (1 = most contact).
-- ``contact_path``: the contact point moved by the joint over ``range`` of articulation.json,
-  sampled at ``states``.
-- ``missing``: articulated parts without an affordance and why (never held while moving).
+affordances.json, their file in the twin folder, is specified in docs/formats.md section 6
+(read and written by :mod:`funrec.formats.affordances`).
 """
-
 
 from __future__ import annotations
 
@@ -63,18 +20,13 @@ from scipy.spatial import cKDTree
 
 from funrec.affordance.handle import grasp_at_handle
 from funrec.affordance.observe import inside_footprint, observed_surface
-from funrec.affordance.types import (
-    AFFORDANCES_FILE,
-    AFFORDANCES_FORMAT,
-    REFERENCE_WIDTH_PX,
-    AffordanceConfig,
+from funrec.affordance.types import REFERENCE_WIDTH_PX, AffordanceConfig, PartSurface
+from funrec.camera.tracking import CameraTrajectory, Progress
+from funrec.formats.affordances import (
     Affordances,
     Interaction,
     PartAffordance,
-    PartSurface,
 )
-from funrec.camera.tracking import CameraTrajectory, Progress
-from funrec.formats.affordances import affordances_to_json, read_affordances, write_affordances
 from funrec.formats.capture import Capture
 from funrec.formats.twin import ArticulatedPart
 from funrec.geometry.camera import backproject
@@ -349,16 +301,4 @@ def _runs(frames: IntArray, max_gap: int, min_length: int) -> list[tuple[int, in
     return [(int(frames[a]), int(frames[b])) for a, b in zip(starts, ends) if frames[b] - frames[a] + 1 >= min_length]
 
 
-__all__ = [
-    "AFFORDANCES_FILE",
-    "AFFORDANCES_FORMAT",
-    "AffordanceConfig",
-    "Affordances",
-    "Interaction",
-    "PartAffordance",
-    "PartSurface",
-    "affordances_to_json",
-    "find_affordances",
-    "read_affordances",
-    "write_affordances",
-]
+__all__ = ["AffordanceConfig", "PartSurface", "find_affordances"]

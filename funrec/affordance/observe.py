@@ -8,8 +8,9 @@ import cv2
 import numpy as np
 
 from funrec.affordance.handle import front_plane
-from funrec.affordance.types import REFERENCE_WIDTH_PX, AffordanceConfig, Interaction
+from funrec.affordance.types import REFERENCE_WIDTH_PX, AffordanceConfig
 from funrec.camera.tracking import CameraTrajectory
+from funrec.formats.affordances import Interaction
 from funrec.formats.capture import Capture
 from funrec.formats.twin import ArticulatedPart
 from funrec.geometry.camera import backproject

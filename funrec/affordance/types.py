@@ -7,18 +7,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import numpy as np
 import numpy.typing as npt
 import trimesh
 
-from funrec.geometry.joints import JOINT_TYPES
-from funrec.surfaces.hands import HAND_SOURCES, HandConfig
-from funrec.typed import FloatArray, IntArray
-
-AFFORDANCES_FORMAT = "funrec-affordances/1"
-"""Format tag written into and required from affordances.json."""
-AFFORDANCES_FILE = "affordances.json"
-"""File name of the affordances in a twin folder."""
+from funrec.surfaces.hands import HandConfig
 
 REFERENCE_WIDTH_PX = 640
 """Image width at which pixel sizes of :class:`AffordanceConfig` are given."""
@@ -152,87 +144,4 @@ class AffordanceConfig:
         return max(self.search_radius_m, self.handle_search_radius_m)
 
 
-@dataclass(frozen=True)
-class Interaction:
-    """One hold of a part: the demonstrated joint trajectory."""
-
-    frames: IntArray
-    """(n,) consecutive frame indices of the hold."""
-    times_s: FloatArray
-    """(n,) time of each frame from the capture start, seconds (frame / fps)."""
-    states: FloatArray
-    """(n,) joint state of the part at each frame, radians or metres from the canonical state."""
-
-    def __post_init__(self) -> None:
-        n = len(self.frames)
-        if n == 0 or np.shape(self.frames) != (n,) or np.shape(self.times_s) != (n,) or np.shape(self.states) != (n,):
-            raise ValueError(f"frames, times_s and states must be equal-length non-empty (n,), got "
-                             f"{np.shape(self.frames)}, {np.shape(self.times_s)}, {np.shape(self.states)}")
-
-
-@dataclass(frozen=True)
-class PartAffordance:
-    """Where and how the hand held one part (world frame, part at its canonical state)."""
-
-    name: str
-    """Part name, as in articulation.json."""
-    joint_type: str
-    """"revolute" or "prismatic"."""
-    contact_point: FloatArray
-    """(3,) robust centre of the contact, world frame at the canonical state, metres."""
-    T_world_grasp: FloatArray
-    """(4, 4) grasp frame at the canonical state (z approach, x along the handle, y = z x x)."""
-    handle_found: bool
-    """True when the contact point was snapped to protruding handle geometry."""
-    interactions: tuple[Interaction, ...]
-    """Holds in time order (at least one)."""
-    region_points: FloatArray
-    """(M, 3) part surface points in contact, world frame at the canonical state."""
-    region_weights: FloatArray
-    """(M,) contact weight of each region point in (0, 1]."""
-    path_states: FloatArray
-    """(S,) joint states sampled over the part's range, radians or metres."""
-    path_points: FloatArray
-    """(S, 3) the contact point at each of ``path_states``, world frame."""
-
-    def __post_init__(self) -> None:
-        if self.joint_type not in JOINT_TYPES:
-            raise ValueError(f"joint_type must be one of {JOINT_TYPES}, got {self.joint_type!r}")
-        if np.shape(self.contact_point) != (3,) or np.shape(self.T_world_grasp) != (4, 4):
-            raise ValueError(f"contact_point must be (3,) and T_world_grasp (4, 4), got {np.shape(self.contact_point)}, {np.shape(self.T_world_grasp)}")
-        M, S = len(self.region_points), len(self.path_states)
-        if np.shape(self.region_points) != (M, 3) or np.shape(self.region_weights) != (M,):
-            raise ValueError(f"region_points must be (M, 3) and region_weights (M,), got {np.shape(self.region_points)}, {np.shape(self.region_weights)}")
-        if np.shape(self.path_states) != (S,) or np.shape(self.path_points) != (S, 3):
-            raise ValueError(f"path_states must be (S,) and path_points (S, 3), got {np.shape(self.path_states)}, {np.shape(self.path_points)}")
-        if not self.interactions:
-            raise ValueError("a part affordance needs at least one interaction")
-
-
-@dataclass(frozen=True)
-class Affordances:
-    """Hand-contact affordances of a twin (contents of affordances.json)."""
-
-    parts: tuple[PartAffordance, ...]
-    """One entry per part the hand was seen holding while it moved."""
-    missing: tuple[tuple[str, str], ...]
-    """(part name, reason) of each articulated part without an affordance."""
-    hand_source: str
-    """"capture" or "detected": where the hand masks came from."""
-    fps: float
-    """Capture frame rate, frames per second (times_s = frame / fps)."""
-
-    def __post_init__(self) -> None:
-        if self.hand_source not in HAND_SOURCES:
-            raise ValueError(f"hand_source must be one of {HAND_SOURCES}, got {self.hand_source!r}")
-        names = [p.name for p in self.parts] + [name for name, _ in self.missing]
-        if len(set(names)) != len(names):
-            raise ValueError(f"part names repeat: {names}")
-
-    def part(self, name: str) -> PartAffordance | None:
-        """The affordance of part ``name``, or None if it has none."""
-        return next((p for p in self.parts if p.name == name), None)
-
-
-
-__all__ = ["AFFORDANCES_FILE", "AFFORDANCES_FORMAT", "REFERENCE_WIDTH_PX", "AffordanceConfig", "Affordances", "Interaction", "PartAffordance", "PartSurface"]
+__all__ = ["REFERENCE_WIDTH_PX", "AffordanceConfig", "PartSurface"]

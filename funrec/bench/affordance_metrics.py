@@ -15,9 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-from funrec.affordance.contacts import read_affordances
 from funrec.bench.evaluate import TwinEvaluation, evaluate_twin
 from funrec.errors import FunrecError
+from funrec.formats.affordances import read_affordances
 from funrec.formats.ground_truth import read_ground_truth
 
 CONTACT_TOLERANCE_M = 0.03

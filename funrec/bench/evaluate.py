@@ -17,16 +17,16 @@ import numpy as np
 import trimesh
 from scipy.optimize import linear_sum_assignment
 
-from funrec.affordance.contacts import AFFORDANCES_FILE, Affordances, read_affordances
 from funrec.bench import metrics
 from funrec.errors import FormatError, FunrecError
+from funrec.formats.affordances import AFFORDANCES_FILE, TWIN_HAND_MASKS, Affordances, read_affordances
 from funrec.formats.camera_poses import read_camera_poses
 from funrec.formats.capture import read_mask
 from funrec.formats.ground_truth import GroundTruth, read_ground_truth
+from funrec.formats.meshes import load_ply
 from funrec.formats.twin import ArticulatedPart, read_articulation
 from funrec.geometry.joints import joint_transform
 from funrec.geometry.transforms import invert_transform, transform_points
-from funrec.surfaces.hands import TWIN_HAND_MASKS
 from funrec.typed import BoolArray, FloatArray
 
 LOGGER = logging.getLogger(__name__)
@@ -162,30 +162,6 @@ def _in_camera0(part: ArticulatedPart, T_camera0_world: FloatArray) -> tuple[Flo
     axis = T_camera0_world[:3, :3] @ part.axis_world
     pivot = None if part.pivot_world is None else transform_points(T_camera0_world, part.pivot_world[None])[0]
     return axis, pivot
-
-
-def load_ply(path: str | Path) -> trimesh.Trimesh | FloatArray:
-    """A twin or ground-truth PLY: a mesh with faces as a Trimesh, a PLY with vertices only as
-    (N, 3) points.
-
-    Raises:
-        FormatError: missing or unreadable file, or no (or non-finite) vertices.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise FormatError(path, "file is missing")
-    try:
-        loaded = trimesh.load(str(path), process=False)
-    except Exception as exc:  # trimesh raises many types on corrupt files
-        raise FormatError(path, f"cannot read mesh ({type(exc).__name__}: {exc})") from None
-    if isinstance(loaded, trimesh.Scene):
-        loaded = loaded.to_geometry() if hasattr(loaded, "to_geometry") else loaded.dump(concatenate=True)
-    if isinstance(loaded, trimesh.Trimesh) and len(loaded.faces) > 0:
-        return loaded
-    vertices = np.asarray(getattr(loaded, "vertices", np.zeros((0, 3))), dtype=np.float64).reshape(-1, 3)
-    if len(vertices) == 0 or not np.all(np.isfinite(vertices)):
-        raise FormatError(path, "no vertices, or non-finite vertices")
-    return vertices
 
 
 def _surface_points(path: Path, T_camera0_world: FloatArray, config: EvalConfig, rng: np.random.Generator) -> FloatArray:
@@ -596,5 +572,4 @@ __all__ = [
     "evaluation_to_json",
     "failed_evaluation",
     "format_evaluation",
-    "load_ply",
 ]

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from funrec.formats.fragments import Fragments, read_fragments
 from funrec.formats.twin import read_json_object
-from funrec.parts.fragments import Fragments, read_fragments
 
 BOUNDARY_TOLERANCE_S = 0.5
 """A matched fragment whose first and last frames are both within this of the true interval's

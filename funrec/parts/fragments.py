@@ -10,45 +10,18 @@ masks, a dynamic fragment also needs the hand in view. The joint type of each dy
 comes from the articulation fitted to its tracks (:mod:`funrec.parts.articulation`), and its final
 span from the fitted part's motion (:func:`motion_span`).
 
-fragments.json (``"format": "funrec-fragments/1"``)::
-
-    {
-      "format": "funrec-fragments/1",
-      "frame_count": 230,
-      "fps": 15.0,
-      "fragments": [                      # consecutive, covering frames 0 .. frame_count - 1
-        {"index": 0, "kind": "static", "first": 0, "last": 69},
-        {"index": 1, "kind": "dynamic", "first": 70, "last": 120, "part": "part_0"},
-        {"index": 2, "kind": "static", "first": 121, "last": 229}
-      ]
-    }
-
-- ``first`` / ``last``: inclusive frame indices; ``times_s = frame / fps``.
-- ``part``: for dynamic fragments, the name of the part (articulation.json) that moved in it;
-  several fragments may name the same part (a door opened twice); null when the motion was not
-  explained by any part (e.g. only the hand moved).
+fragments.json is read and written by :mod:`funrec.formats.fragments`.
 """
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-from funrec.errors import FormatError
-from funrec.formats.twin import read_json_object
+from funrec.formats.fragments import Fragment, Fragments
 from funrec.typed import BoolArray, FloatArray
-
-FRAGMENTS_FORMAT = "funrec-fragments/1"
-"""Format tag written into and required from fragments.json."""
-FRAGMENTS_FILE = "fragments.json"
-"""File name of the fragment list in a twin folder."""
-FRAGMENT_KINDS = ("static", "dynamic")
-"""Kinds of fragments."""
 
 
 @dataclass(frozen=True)
@@ -85,64 +58,6 @@ class FragmentConfig:
     min_hand_fraction: float = 0.5
     """With hand masks, a dynamic fragment needs a visible hand in at least this fraction of its
     frames (the person's hand moves the part)."""
-
-
-@dataclass(frozen=True)
-class Fragment:
-    """A contiguous span of frames, static or dynamic."""
-
-    index: int
-    """Position in the fragment list."""
-    kind: str
-    """"static" or "dynamic"."""
-    first: int
-    """First frame (inclusive)."""
-    last: int
-    """Last frame (inclusive)."""
-    part: str | None = None
-    """For a dynamic fragment, the part that moved in it (None: not known or not explained)."""
-
-    def __post_init__(self) -> None:
-        if self.kind not in FRAGMENT_KINDS:
-            raise ValueError(f"kind must be one of {FRAGMENT_KINDS}, got {self.kind!r}")
-        if not 0 <= self.first <= self.last:
-            raise ValueError(f"fragment {self.index}: need 0 <= first <= last, got {self.first}, {self.last}")
-        if self.part is not None and self.kind != "dynamic":
-            raise ValueError(f"fragment {self.index}: only a dynamic fragment names a part")
-
-    @property
-    def frames(self) -> npt.NDArray[np.int64]:
-        """(last - first + 1,) the fragment's frame indices."""
-        return np.arange(self.first, self.last + 1, dtype=np.int64)
-
-
-@dataclass(frozen=True)
-class Fragments:
-    """A capture split into consecutive fragments, and the evidence it was split on."""
-
-    fragments: tuple[Fragment, ...]
-    """Consecutive fragments covering every frame, in time order."""
-    frame_count: int
-    """Frames of the capture."""
-    fps: float
-    """Frame rate, frames per second."""
-    evidence: FloatArray
-    """(F,) scene-change fraction of the frame pair starting at each frame (see
-    :func:`funrec.parts.scene_change.scene_change`)."""
-
-    def __post_init__(self) -> None:
-        expected = 0
-        for k, f in enumerate(self.fragments):
-            if f.index != k or f.first != expected:
-                raise ValueError(f"fragment {k} must have index {k} and start at frame {expected}, got {f}")
-            expected = f.last + 1
-        if self.fragments and expected != self.frame_count:
-            raise ValueError(f"fragments end at frame {expected - 1}, the capture has {self.frame_count} frames")
-
-    @property
-    def dynamic(self) -> tuple[Fragment, ...]:
-        """The dynamic fragments, in time order."""
-        return tuple(f for f in self.fragments if f.kind == "dynamic")
 
 
 def _spans(active: BoolArray) -> list[tuple[int, int]]:
@@ -312,58 +227,4 @@ def find_fragments(
     return Fragments(fragments_from_spans(spans, F), F, float(fps), evidence)
 
 
-def fragments_to_json(fragments: Fragments) -> dict[str, Any]:
-    """The fragments.json dictionary (see the module docstring)."""
-    rows = []
-    for f in fragments.fragments:
-        row: dict[str, Any] = {"index": f.index, "kind": f.kind, "first": f.first, "last": f.last}
-        if f.kind == "dynamic":
-            row["part"] = f.part
-        rows.append(row)
-    return {"format": FRAGMENTS_FORMAT, "frame_count": fragments.frame_count, "fps": fragments.fps, "fragments": rows}
-
-
-def write_fragments(path: str | Path, fragments: Fragments) -> None:
-    """Write fragments.json (a file path, or a twin folder to write it into)."""
-    path = Path(path)
-    if path.is_dir():
-        path = path / FRAGMENTS_FILE
-    path.write_text(json.dumps(fragments_to_json(fragments), indent=1) + "\n")
-
-
-def read_fragments(path: str | Path) -> Fragments:
-    """Read fragments.json (a file path or a twin folder).
-
-    Raises:
-        FormatError: the file is not funrec-fragments/1 (names the file and the field).
-    """
-    path = Path(path)
-    if path.is_dir():
-        path = path / FRAGMENTS_FILE
-    data = read_json_object(path)
-    if data.get("format") != FRAGMENTS_FORMAT:
-        raise FormatError(path, f"format must be {FRAGMENTS_FORMAT!r}")
-    try:
-        rows = data["fragments"]
-        fragments = tuple(
-            Fragment(int(r["index"]), str(r["kind"]), int(r["first"]), int(r["last"]), r.get("part")) for r in rows
-        )
-        return Fragments(fragments, int(data["frame_count"]), float(data["fps"]), np.zeros(int(data["frame_count"])))
-    except (KeyError, TypeError, ValueError) as error:
-        raise FormatError(path, f"bad fragment list: {error}") from error
-
-
-__all__ = [
-    "FRAGMENTS_FILE",
-    "FRAGMENTS_FORMAT",
-    "Fragment",
-    "FragmentConfig",
-    "Fragments",
-    "dynamic_spans",
-    "evidence_span",
-    "find_fragments",
-    "fragments_from_spans",
-    "motion_span",
-    "read_fragments",
-    "write_fragments",
-]
+__all__ = ["FragmentConfig", "dynamic_spans", "evidence_span", "find_fragments", "fragments_from_spans", "motion_span"]

@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 
 from funrec.camera.tracking import CameraTrajectory, Progress
+from funrec.formats.affordances import HAND_SOURCES, TWIN_HAND_MASKS
 from funrec.formats.capture import Capture
 from funrec.formats.twin import ArticulatedPart
 from funrec.geometry.joints import joint_transforms
@@ -23,11 +24,6 @@ from funrec.typed import BoolArray, Float32Array, FloatArray, IntArray, UInt8Arr
 
 logger = logging.getLogger(__name__)
 
-TWIN_HAND_MASKS = "masks/hand"
-"""Folder of a twin (relative) holding detected hand masks, one ``<frame:06d>.png`` per frame
-(8-bit, >0 = hand), the layout of a capture's masks/hand/; scored by ``funrec eval``."""
-HAND_SOURCES = ("capture", "detected")
-"""Where a :class:`HandMasks` came from: the capture's masks/hand/ files or :func:`detect_hands`."""
 _SAME_POSE = 1e-6
 """Entries of a part's relative motion between two frames below this (m, or rotation-matrix
 units) mean the part did not move: its motion hypothesis is then the static one."""
