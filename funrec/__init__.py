@@ -50,4 +50,25 @@ def __getattr__(name: str) -> Any:
     return getattr(importlib.import_module(f"funrec.{_MODULE_OF[name]}"), name)
 
 
-__all__ = sorted(_MODULE_OF)
+__all__ = [
+    "Affordances",
+    "ArticulatedPart",
+    "Capture",
+    "CaptureError",
+    "CaptureIntrinsics",
+    "CaptureWriter",
+    "FormatError",
+    "Fragments",
+    "FunrecError",
+    "PartAffordance",
+    "ReconstructConfig",
+    "ReconstructionError",
+    "ReconstructionSummary",
+    "TwinArticulation",
+    "load_capture",
+    "read_affordances",
+    "read_articulation",
+    "read_fragments",
+    "reconstruct",
+    "write_articulation",
+]
