@@ -17,15 +17,17 @@ from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
+import trimesh
 from threadpoolctl import threadpool_limits  # a dependency of scikit-learn
 
 from funrec.affordance.contacts import AffordanceConfig, find_affordances
 from funrec.camera.tracking import TrackingConfig, track_camera
-from funrec.export.simulation import ExportConfig, export_simulation
+from funrec.export.simulation import ExportConfig, InMemoryTwin, export_simulation
 from funrec.export.twin import TwinWriter
 from funrec.formats.affordances import TWIN_HAND_MASKS, write_affordances
 from funrec.formats.capture import Capture, load_capture
 from funrec.formats.fragments import Fragment, Fragments, write_fragments
+from funrec.formats.meshes import as_written
 from funrec.formats.twin import ArticulatedPart, TwinArticulation, make_part
 from funrec.geometry.transforms import transform_points
 from funrec.parts.articulation import ArticulationConfig, InteractionEvidence, PartEstimate, estimate_articulation
@@ -376,7 +378,14 @@ def _reconstruct(capture_dir: str | Path, out_dir: str | Path, config: Reconstru
         if config.align_gravity:
             alignment = timed("gravity", estimate_gravity, meshes.static.vertices, trajectory.T_world_camera, config.gravity)
             T_twin_world = alignment.T_aligned_world
-        meshes.static.copy().apply_transform(T_twin_world).export(writer.path("meshes/static.ply"))
+        written: dict[str, trimesh.Trimesh] = {}  # what the PLY files hold, handed to the export
+
+        def write_mesh(mesh: trimesh.Trimesh, relative: str) -> trimesh.Trimesh:
+            mesh.export(writer.path(relative))
+            written[relative] = as_written(mesh)
+            return mesh
+
+        write_mesh(meshes.static.copy().apply_transform(T_twin_world), "meshes/static.ply")
         # A part whose masks fused into no surface cannot be scored or simulated: dropped.
         kept = [k for k, mesh in enumerate(meshes.parts) if k not in meshes.empty_parts and len(mesh.faces) > 0]
         if len(kept) < len(motions):
@@ -387,8 +396,7 @@ def _reconstruct(capture_dir: str | Path, out_dir: str | Path, config: Reconstru
         for k, (motion, mesh, masks) in enumerate(zip(motions, [meshes.parts[k] for k in kept], all_masks, strict=True)):
             for frame, png in zip(masks.frames, masks.png, strict=True):
                 writer.path(f"masks/part_{k}/{int(frame):06d}.png").write_bytes(png)
-            surfaces.append(mesh.copy().apply_transform(T_twin_world))
-            surfaces[-1].export(writer.path(f"meshes/part_{k}.ply"))
+            surfaces.append(write_mesh(mesh.copy().apply_transform(T_twin_world), f"meshes/part_{k}.ply"))
             parts.append(_articulated(f"part_{k}", motion, T_twin_world, mesh=f"meshes/part_{k}.ply", masks=f"masks/part_{k}"))
         trajectory_twin = dataclasses.replace(trajectory, T_world_camera=T_twin_world @ trajectory.T_world_camera)
         if hands.source == "detected":
@@ -398,8 +406,9 @@ def _reconstruct(capture_dir: str | Path, out_dir: str | Path, config: Reconstru
         write_affordances(writer.path("affordances.json"), affordances)
         write_fragments(writer.path("fragments.json"), fragments)
         writer.write_camera_poses(trajectory_twin.T_world_camera)
-        writer.write_articulation(TwinArticulation(frame_count=len(capture), parts=tuple(parts)))
-        timed("export", export_simulation, writer.root, config.export)
+        articulation = TwinArticulation(frame_count=len(capture), parts=tuple(parts))
+        writer.write_articulation(articulation)
+        timed("export", export_simulation, writer.root, config.export, InMemoryTwin(articulation, written))
     summaries = tuple(
         PartSummary(p.name, p.joint_type, p.state_range, (int(p.frames[0]), int(p.frames[-1]))) for p in parts
     )

@@ -401,3 +401,31 @@ def test_coacd_splits_a_concave_drawer() -> None:
     pieces = decompose(drawer, "coacd", CollisionConfig(), "drawer")
     assert len(pieces) >= 3
     assert sum(p.volume for p in pieces) < 0.5 * drawer.convex_hull.volume
+
+
+def test_export_of_an_in_memory_twin_equals_the_export_of_its_folder(tmp_path: Path) -> None:
+    """The pipeline hands the export the twin it holds (InMemoryTwin) instead of reading back the
+    folder it just wrote; both must give the same files, and the meshes it hands over must be what
+    the PLY files hold, so that `funrec export TWIN` later rebuilds the same model."""
+    import shutil
+
+    from funrec.export.simulation import InMemoryTwin
+    from funrec.formats.meshes import as_written
+    from funrec.formats.twin import read_articulation
+
+    config = dataclasses.replace(FAST_EXPORT, formats=("urdf", "mjcf"))
+    folder = export(tmp_path / "a", config)
+    twin_dir = folder.urdf.parent
+    shutil.copytree(twin_dir, tmp_path / "b")
+    articulation = read_articulation(twin_dir)
+    names = [articulation.static_mesh] + [p.mesh for p in articulation.parts]
+    meshes = {name: trimesh.load(twin_dir / name, process=False) for name in names}
+    export_simulation(tmp_path / "b", config, InMemoryTwin(articulation, meshes))
+    for name in ("twin.urdf", "twin.xml"):
+        assert (tmp_path / "b" / name).read_text() == (twin_dir / name).read_text(), name
+    rng = np.random.default_rng(0)
+    mesh = trimesh.Trimesh(rng.normal(size=(30, 3)), rng.integers(0, 30, size=(20, 3)), process=False)
+    mesh.export(tmp_path / "m.ply")
+    read = trimesh.load(tmp_path / "m.ply", process=False)
+    np.testing.assert_array_equal(as_written(mesh).vertices, read.vertices)  # exact: the same float32 values
+    np.testing.assert_array_equal(as_written(mesh).faces, read.faces)

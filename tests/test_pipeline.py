@@ -134,3 +134,4 @@ def test_reconstruct_limits_blas_threads_while_it_runs(monkeypatch: pytest.Monke
     pipeline.reconstruct("capture", "twin", ReconstructConfig(blas_threads=0))
     assert seen == [{1}, outside]
     assert blas_threads() == outside
+

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,7 +28,7 @@ from funrec.export.sim_model import (
     write_mesh_files,
 )
 from funrec.export.urdf import write_urdf
-from funrec.formats.twin import ArticulatedPart, read_articulation
+from funrec.formats.twin import ArticulatedPart, TwinArticulation, read_articulation
 from funrec.geometry.transforms import check_transform
 from funrec.typed import FloatArray
 
@@ -37,6 +38,18 @@ EXPORT_FORMATS = ("urdf", "mjcf", "usd")
 """Simulator files export_simulation can write: twin.urdf, twin.xml and twin.usda."""
 URDF_NAME, MJCF_NAME, USD_NAME = "twin.urdf", "twin.xml", "twin.usda"
 """File names inside the twin folder (FORMATS.md section 2)."""
+
+
+@dataclass(frozen=True)
+class InMemoryTwin:
+    """A twin folder's contents as the pipeline holds them: the export needs not read back what was just written."""
+
+    articulation: TwinArticulation
+    """articulation.json."""
+    meshes: dict[str, trimesh.Trimesh]
+    """Meshes by their path relative to the twin folder (``meshes/static.ply``), with the vertices
+    the PLY files hold (float32, as trimesh writes them): a later ``funrec export TWIN`` of the folder
+    then builds the same model."""
 
 
 @dataclass(frozen=True)
@@ -113,12 +126,15 @@ class SimulationExports:
     """Wall time of the whole export (s)."""
 
 
-def export_simulation(twin_dir: str | Path, config: ExportConfig = ExportConfig()) -> SimulationExports:
+def export_simulation(twin_dir: str | Path, config: ExportConfig = ExportConfig(),  # noqa: B008 (frozen)
+                      twin: InMemoryTwin | None = None) -> SimulationExports:
     """Write twin.urdf, twin.xml and twin.usda into a twin folder.
 
     Args:
         twin_dir: twin folder holding articulation.json and the meshes it names.
         config: export settings.
+        twin: the twin's articulation and meshes as they were just written to ``twin_dir`` (the
+            pipeline's); None reads them from the folder.
 
     Returns:
         The files written and the model they describe.
@@ -129,7 +145,7 @@ def export_simulation(twin_dir: str | Path, config: ExportConfig = ExportConfig(
     """
     start = time.perf_counter()
     twin_dir = Path(twin_dir)
-    model, decomposition_seconds = build_model(twin_dir, config)
+    model, decomposition_seconds = build_model(twin_dir, config, twin)
     mesh_files = write_mesh_files(model, twin_dir)
     paths: dict[str, Path | None] = {name: None for name in EXPORT_FORMATS}
     if "urdf" in config.formats:
@@ -153,12 +169,14 @@ def export_simulation(twin_dir: str | Path, config: ExportConfig = ExportConfig(
     )
 
 
-def build_model(twin_dir: str | Path, config: ExportConfig = ExportConfig()) -> tuple[SimModel, float]:
-    """Read a twin folder into a simulator-neutral model.
+def build_model(twin_dir: str | Path, config: ExportConfig = ExportConfig(),  # noqa: B008 (frozen)
+                twin: InMemoryTwin | None = None) -> tuple[SimModel, float]:
+    """Read a twin folder (or take its in-memory copy) into a simulator-neutral model.
 
     Args:
-        twin_dir: twin folder holding articulation.json and its meshes.
+        twin_dir: twin folder holding articulation.json and its meshes; named in errors.
         config: export settings.
+        twin: the folder's articulation and meshes already in memory; None reads them.
 
     Returns:
         The model and the wall time (s) spent in convex decomposition.
@@ -167,10 +185,18 @@ def build_model(twin_dir: str | Path, config: ExportConfig = ExportConfig()) -> 
         ExportError: see :func:`export_simulation`.
     """
     twin_dir = Path(twin_dir)
-    try:
-        articulation = read_articulation(twin_dir)
-    except FormatError as exc:
-        raise ExportError(str(exc)) from None
+    if twin is None:
+        try:
+            articulation = read_articulation(twin_dir)
+        except FormatError as exc:
+            raise ExportError(str(exc)) from None
+    else:
+        articulation = twin.articulation
+
+    def load(relative: str) -> trimesh.Trimesh:
+        if twin is not None and relative in twin.meshes:
+            return twin.meshes[relative].copy()
+        return _load_mesh(twin_dir, relative)
     names = [part.name for part in articulation.parts]
     unknown = [name for name, _ in config.part_densities if name not in names]
     if unknown:
@@ -190,12 +216,12 @@ def build_model(twin_dir: str | Path, config: ExportConfig = ExportConfig()) -> 
                 raise ExportError(
                     f"{twin_dir / 'articulation.json'}: part {part.name} names no mesh; a simulator link needs one"
                 )
-            mesh_world = _load_mesh(twin_dir, part.mesh)
+            mesh_world = load(part.mesh)
             T_world_part = part_link_frame(part.joint_type, part.axis_world, part.pivot_world, mesh_world.centroid)
             visual_part = to_link_frame(mesh_world, T_world_part)
             decomposition = pool.submit(decompose, visual_part, config.collision.part_method, config.collision, part.mesh)
             part_inputs.append((part, T_world_part, visual_part, decomposition))
-        base = _static_link(twin_dir, articulation.static_mesh, T_export_world, config, pool)
+        base = _static_link(articulation.static_mesh, load, T_export_world, config, pool)
         parts, joints = [], []
         for part, T_world_part, visual_part, decomposition in part_inputs:
             pieces = decomposition.result()
@@ -210,13 +236,14 @@ def build_model(twin_dir: str | Path, config: ExportConfig = ExportConfig()) -> 
 
 
 def _static_link(
-    twin_dir: Path, static_mesh: str | None, T_export_world: FloatArray, config: ExportConfig, pool: ThreadPoolExecutor
+    static_mesh: str | None, load: Callable[[str], trimesh.Trimesh], T_export_world: FloatArray, config: ExportConfig,
+    pool: ThreadPoolExecutor,
 ) -> SimLink:
     """The static link: the static mesh in the export frame and its convex pieces."""
     visual = None
     collision: tuple[trimesh.Trimesh, ...] = ()
     if static_mesh is not None:
-        visual = _load_mesh(twin_dir, static_mesh)
+        visual = load(static_mesh)
         visual.apply_transform(T_export_world)
         tic = time.perf_counter()
         method = config.collision.static_method
