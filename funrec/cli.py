@@ -39,6 +39,9 @@ def _print_summary(summary: Any) -> None:
     print(f"  {len(summary.parts)} part(s): {parts or 'nothing was opened in this capture'}")
     fragments = ", ".join(f"{f.first}-{f.last} {f.kind}{f' ({f.part})' if f.part else ''}" for f in summary.fragments)
     print(f"  {len(summary.fragments)} fragment(s): {fragments}")
+    for f in summary.fragments:
+        if f.kind == "dynamic" and f.part is None:
+            print(f"  scene change in frames {f.first}-{f.last} gave no part: {f.reason}")
     print(f"  {summary.frame_count} frames in {total:.1f} s ({summary.frame_count / max(total, 1e-9):.1f} frames/s): {timings}")
     if summary.untracked_frames:
         print(f"  {summary.untracked_frames} frame(s) could not be registered; their camera poses are interpolated")

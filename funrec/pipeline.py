@@ -21,7 +21,7 @@ import trimesh
 from threadpoolctl import threadpool_limits  # a dependency of scikit-learn
 
 from funrec.affordance.contacts import AffordanceConfig, find_affordances
-from funrec.camera.tracking import TrackingConfig, track_camera
+from funrec.camera.tracking import CameraTrajectory, TrackingConfig, track_camera
 from funrec.export.simulation import ExportConfig, InMemoryTwin, export_simulation
 from funrec.export.twin import TwinWriter
 from funrec.formats.affordances import TWIN_HAND_MASKS, write_affordances
@@ -30,13 +30,21 @@ from funrec.formats.fragments import Fragment, Fragments, write_fragments
 from funrec.formats.meshes import as_written
 from funrec.formats.twin import ArticulatedPart, TwinArticulation, make_part
 from funrec.geometry.transforms import transform_points
-from funrec.parts.articulation import ArticulationConfig, InteractionEvidence, PartEstimate, estimate_articulation
+from funrec.parts.articulation import (
+    ArticulationConfig,
+    InteractionEvidence,
+    PartEstimate,
+    estimate_articulation,
+    fit_part,
+)
 from funrec.parts.camera_lock import CameraLockConfig, unlock_camera
+from funrec.parts.depth_proposal import DepthProposalConfig, proposal_tracks, propose_part
 from funrec.parts.fragment_tracks import WindowTracks, join_windows, sub_capture, sub_trajectory, track_window
 from funrec.parts.fragments import FragmentConfig, find_fragments, fragments_from_spans, motion_span
+from funrec.parts.joint_type import JointTypeConfig, choose_joint_type
 from funrec.parts.part_merge import PartMergeConfig, canonical_part_points, merge_parts
 from funrec.parts.part_motion import PartMotion, PartMotionConfig, refine_part_motion
-from funrec.parts.point_tracks import PointTrackConfig
+from funrec.parts.point_tracks import PointTrackConfig, PointTracks
 from funrec.parts.scene_change import SceneChangeConfig, scene_change
 from funrec.surfaces.fusion import FusionConfig, fuse_tsdf
 from funrec.surfaces.gravity import GravityConfig, estimate_gravity
@@ -64,6 +72,10 @@ class ReconstructConfig:
     """Static and dynamic fragments of the video."""
     articulation: ArticulationConfig = field(default_factory=ArticulationConfig)
     """Articulation-aware motion clustering (stage 3), run on each dynamic fragment."""
+    depth_proposal: DepthProposalConfig = field(default_factory=DepthProposalConfig)
+    """A part proposed from depth alone where the tracks give none (plain fronts)."""
+    joint_type: JointTypeConfig = field(default_factory=JointTypeConfig)
+    """The joint type of each found part decided in depth when the tracks cannot tell."""
     camera_lock: CameraLockConfig = field(default_factory=CameraLockConfig)
     """When the camera trajectory followed a found part instead of the static scene (undone)."""
     part_merge: PartMergeConfig = field(default_factory=PartMergeConfig)
@@ -194,21 +206,66 @@ def _motion_scene_change(part: PartEstimate, first: int, change: npt.NDArray[np.
     return float(steps @ change[part.frames[:-1] + first]) / total if total > 0.0 else 0.0
 
 
+@dataclass(frozen=True)
+class FragmentParts:
+    """Stage 3's outcome on the dynamic fragments."""
+
+    found: list[tuple[int, PartEstimate]]
+    """(fragment index, part) of each part kept; frames and track indices local to the window."""
+    reasons: dict[int, str]
+    """Why no part was built, for each dynamic fragment index that has none."""
+    windows: list[WindowTracks]
+    """The windows' tracks, with the tracks of parts proposed from depth appended."""
+
+
 def _fragment_parts(windows: list[WindowTracks], evidence: InteractionEvidence | None, config: ReconstructConfig,
-                    change: npt.NDArray[np.float64] | None = None) -> list[tuple[int, PartEstimate]]:
-    """Stage 3 on each dynamic fragment's tracks: (fragment index, part) for the best
-    ``parts_per_fragment`` parts of each; frames and track indices local to the window. Without
-    mask ``evidence``, the parts are ranked by size x scene change while they move (``change``,
-    (F,) per frame pair of the capture; :func:`_motion_scene_change`)."""
-    found = []
+                    change: npt.NDArray[np.float64] | None = None, capture: Capture | None = None,
+                    trajectory: CameraTrajectory | None = None) -> FragmentParts:
+    """Stage 3 on each dynamic fragment's tracks: the best ``parts_per_fragment`` parts of each.
+    Without mask ``evidence``, the parts are ranked by size x scene change while they move
+    (``change``, (F,) per frame pair of the capture; :func:`_motion_scene_change`). Where the
+    tracks give no part (a plain front), one is proposed from the ``capture``'s depth
+    (:func:`~funrec.parts.depth_proposal.propose_part`) and its tracks join the window's."""
+    found, reasons, windows = [], {}, list(windows)
     for k, window in enumerate(windows):
         parts = list(estimate_articulation(window.tracks, _window_evidence(evidence, window), config.articulation).parts)
         if evidence is None and change is not None:
             parts.sort(key=lambda p: -p.size_score * _motion_scene_change(p, window.first, change))
+        if not parts and capture is not None and trajectory is not None:
+            proposed = _depth_part(window, capture, trajectory, config)
+            if proposed is not None:
+                windows[k], part = proposed
+                parts = [part]
         found += [(k, part) for part in parts[: config.parts_per_fragment]]
+        if not parts:
+            reasons[k] = (f"no moving part fitted the {window.tracks.num_tracks} point tracks of frames "
+                          f"{window.first}-{window.last}"
+                          + (", and depth showed no surface that left as a joint moves it" if config.depth_proposal.enabled
+                             else ""))
         log.info("fragment %d (window %d-%d): %s", k, window.first, window.last,
-                 ", ".join(p.joint_type for p in parts[: config.parts_per_fragment]) or "no part")
-    return found
+                 ", ".join(p.joint_type for p in parts[: config.parts_per_fragment]) or reasons[k])
+    return FragmentParts(found, reasons, windows)
+
+
+def _depth_part(window: WindowTracks, capture: Capture, trajectory: CameraTrajectory,
+                config: ReconstructConfig) -> tuple[WindowTracks, PartEstimate] | None:
+    """A part proposed from the window's depth: the window with the part's tracks appended, and
+    the part fitted to them (frames and track indices local to the window)."""
+    span, poses = sub_capture(capture, window.first, window.last), sub_trajectory(trajectory, window.first, window.last)
+    hand = (lambda frame: span.mask("hand", frame)) if span.has_hand_masks else None
+    proposal = propose_part(span, poses, hand, config.depth_proposal)
+    if proposal is None:
+        return None
+    added = proposal_tracks(proposal, span, poses)
+    N = window.tracks.num_tracks
+    tracks = PointTracks(np.concatenate([window.tracks.p_world, added.p_world], 1),
+                         np.concatenate([window.tracks.uv, added.uv], 1),
+                         np.concatenate([window.tracks.visible, added.visible], 1))
+    part = fit_part(tracks, np.arange(N, N + added.num_tracks), proposal.joint_type, config.articulation,
+                    size_score=float(added.num_tracks))
+    if part is None:
+        return None
+    return WindowTracks(window.first, window.last, tracks), part
 
 
 def _part_span(windows: list[WindowTracks], found: list[tuple[int, PartEstimate]], owner: list[int], index: int,
@@ -225,11 +282,11 @@ def _part_span(windows: list[WindowTracks], found: list[tuple[int, PartEstimate]
 
 def _final_fragments(fragments: Fragments, windows: list[WindowTracks], found: list[int], owner: list[int],
                      part_states: list[tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]], config: ReconstructConfig,
-                     arm_in_evidence: bool = True) -> Fragments:
+                     arm_in_evidence: bool = True, reasons: dict[int, str] | None = None) -> Fragments:
     """The fragments once parts are known: each dynamic fragment in which a part was found is
     trimmed to that part's motion inside the fragment's window where its states show it
-    (:func:`~funrec.parts.fragments.motion_span`) and names the part; one in which no part was found is
-    static (the motion was the hand, or drift). Trimming, and a side the states miss taken from the
+    (:func:`~funrec.parts.fragments.motion_span`) and names the part; one in which no part was found
+    stays dynamic, names no part and says why (``reasons``): scene change is never silently static. Trimming, and a side the states miss taken from the
     scene change of the part's motion, happen only with ``arm_in_evidence`` (no hand masks: the
     scene change also shows the arm reaching in and out); with hand masks the hand-gated scene
     change already spans the interaction, which goes on while the hand holds the part still.
@@ -242,8 +299,12 @@ def _final_fragments(fragments: Fragments, windows: list[WindowTracks], found: l
         part_states: per merged part, its (F_m,) capture frames and (F_m,) states.
         config: settings.
         arm_in_evidence: the fragments' scene change includes the arm (no hand masks).
+        reasons: why no part was built, per dynamic fragment index without one.
     """
-    spans: list[tuple[int, int, str]] = []
+    spans: list[tuple[int, int, str | None, str | None]] = []
+    for k, fragment in enumerate(fragments.dynamic):
+        if k not in found:
+            spans.append((fragment.first, fragment.last, None, (reasons or {}).get(k, "no part was found in it")))
     for k, merged_index in zip(found, owner, strict=True):
         first, last = fragments.dynamic[k].first, fragments.dynamic[k].last
         frames, states = part_states[merged_index]
@@ -254,16 +315,22 @@ def _final_fragments(fragments: Fragments, windows: list[WindowTracks], found: l
                                       config.scene_change.lag_frames)
         first, last = max(first, start if start is not None else first), min(last, stop if stop is not None else last)
         if first <= last:
-            spans.append((first, last, f"part_{merged_index}"))
-    spans.sort()  # detected fragments are disjoint, and trimming only shrinks them
-    tiles = fragments_from_spans([(a, b) for a, b, _ in spans], fragments.frame_count, [name for _, _, name in spans])
+            spans.append((first, last, f"part_{merged_index}", None))
+    spans.sort(key=lambda s: s[:2])  # detected fragments are disjoint, and trimming only shrinks them
+    tiles = fragments_from_spans([(a, b) for a, b, _, _ in spans], fragments.frame_count, [s[2] for s in spans],
+                                 [s[3] for s in spans])
     return dataclasses.replace(fragments, fragments=tiles)
 
 
 def _rename_parts(fragments: Fragments, names: dict[str, str]) -> Fragments:
     """The fragments with their part names mapped by ``names``; a part not in it was dropped (its
-    fragment stays dynamic and names no part)."""
-    renamed = tuple(dataclasses.replace(f, part=names.get(f.part)) if f.part is not None else f for f in fragments.fragments)
+    fragment stays dynamic, names no part and says so)."""
+    renamed = tuple(
+        dataclasses.replace(f, part=names[f.part]) if f.part in names
+        else dataclasses.replace(f, part=None, reason=f"{f.part} was found but fused into no surface (empty masks): dropped")
+        if f.part is not None else f
+        for f in fragments.fragments
+    )
     return dataclasses.replace(fragments, fragments=renamed)
 
 
@@ -334,11 +401,19 @@ def _reconstruct(capture_dir: str | Path, out_dir: str | Path, config: Reconstru
                   progress=stage_progress(f"tracks fragment {k}"))
             for k in range(len(fragments.dynamic))
         ]
-        found = timed("articulation", _fragment_parts, windows, _evidence(capture, config), config, change)
-        unlocked = unlock_camera(trajectory, windows, found, config.camera_lock)
+        outcome = timed("articulation", _fragment_parts, windows, _evidence(capture, config), config, change, capture,
+                        trajectory)
+        unlocked = unlock_camera(trajectory, outcome.windows, outcome.found, config.camera_lock)
         if unlocked is not None:  # the camera had followed a part: poses and tracks corrected, parts found again
             trajectory, windows = unlocked
-            found = timed("articulation", _fragment_parts, windows, _evidence(capture, config), config, change)
+            outcome = timed("articulation", _fragment_parts, windows, _evidence(capture, config), config, change, capture,
+                            trajectory)
+        windows = outcome.windows
+        found = [(k, timed("joint type", choose_joint_type, part, windows[k].tracks,
+                           sub_capture(capture, windows[k].first, windows[k].last),
+                           sub_trajectory(trajectory, windows[k].first, windows[k].last), config.articulation,
+                           config.joint_type))
+                 for k, part in outcome.found]
         in_capture = [dataclasses.replace(part, frames=part.frames + windows[k].first) for k, part in found]
         points = [canonical_part_points(part, windows[k].tracks) for k, part in found]
         estimates, owner = timed("part merge", merge_parts, in_capture, points, config.part_merge)
@@ -357,7 +432,8 @@ def _reconstruct(capture_dir: str | Path, out_dir: str | Path, config: Reconstru
             motions.append(dataclasses.replace(motion, frames=motion.frames + span.first, edge_frames=motion.edge_frames + span.first))
             all_masks.append(dataclasses.replace(masks, frames=masks.frames + span.first, keyframes=masks.keyframes + span.first))
         fragments = _final_fragments(fragments, windows, [k for k, _ in found], owner,
-                                     [(m.frames, m.states) for m in motions], config, not capture.has_hand_masks)
+                                     [(m.frames, m.states) for m in motions], config, not capture.has_hand_masks,
+                                     outcome.reasons)
         # Hands before fusion, so that detected hands and arms (no masks in the capture) stay out of the static
         # scene as masked ones do; image-space masks, unchanged by the gravity alignment that follows.
         moved = [_articulated(f"part_{k}", motion, np.eye(4)) for k, motion in enumerate(motions)]

@@ -44,17 +44,19 @@ def test_final_fragments_trim_name_and_drop() -> None:
     frames = np.arange(20, 95)
     seen_at_rest = (frames, np.interp(frames, [20, 50, 65, 94], [0, 0, 1, 1]))  # moved 50-65, seen at rest around
     lost_early = (np.arange(140, 170), np.linspace(0, 0.5, 30))  # tracks died while it moved: no boundary known
-    # fragment 1 found no part (only the hand moved): it becomes static
-    final = _final_fragments(fragments, windows, [0, 2], [0, 1], [seen_at_rest, lost_early], config)
+    # fragment 1 found no part (only the hand moved): it stays dynamic, names no part and says why
+    final = _final_fragments(fragments, windows, [0, 2], [0, 1], [seen_at_rest, lost_early], config,
+                             reasons={1: "no moving part fitted"})
     pad = round(config.fragments.padding_s * FPS)
     dynamic = [(f.first, f.last, f.part) for f in final.dynamic]
     # the states pass 5 % of the travel at frame 51 and leave the end state's 5 % at 64
-    assert dynamic == [(50 - pad, 65 + pad, "part_0"), (150, 190, "part_1")]
+    assert dynamic == [(50 - pad, 65 + pad, "part_0"), (100, 130, None), (150, 190, "part_1")]
+    assert final.dynamic[1].reason == "no moving part fitted"
     assert sum(f.last - f.first + 1 for f in final.fragments) == 200
     # with hand masks the hand-gated scene change spans the interaction (the hand may hold the
     # part still after it moved): named, not trimmed
     held = _final_fragments(fragments, windows, [0, 2], [0, 1], [seen_at_rest, lost_early], config, arm_in_evidence=False)
-    assert [(f.first, f.last, f.part) for f in held.dynamic] == [(30, 80, "part_0"), (150, 190, "part_1")]
+    assert [(f.first, f.last, f.part) for f in held.dynamic] == [(30, 80, "part_0"), (100, 130, None), (150, 190, "part_1")]
 
 
 def test_dropped_parts_are_renamed_in_the_fragments() -> None:
@@ -63,6 +65,7 @@ def test_dropped_parts_are_renamed_in_the_fragments() -> None:
                       np.zeros(200))
     renamed = _rename_parts(named, {"part_0": "part_0", "part_2": "part_1"})  # part_1 had no mesh
     assert [f.part for f in renamed.dynamic] == ["part_0", None, "part_1"]
+    assert "dropped" in renamed.dynamic[1].reason
     assert [f.part for f in _rename_parts(fragments, {}).dynamic] == [None, None, None]
 
 
@@ -101,7 +104,7 @@ def test_reconstruct_smoke_captures_end_to_end(smoke_captures: dict[str, Path], 
     walk = reconstruct(smoke_captures["smoke_static_00"], tmp_path / "static", config)
     assert walk.parts == () and all(f.kind == "static" for f in walk.fragments)
     for twin in ("rev", "static"):
-        assert json.loads((tmp_path / twin / "fragments.json").read_text())["format"] == "funrec-fragments/1"
+        assert json.loads((tmp_path / twin / "fragments.json").read_text())["format"] == "funrec-fragments/2"
         assert json.loads((tmp_path / twin / "affordances.json").read_text())["format"] == "funrec-affordances/1"
 
 

@@ -87,7 +87,8 @@ def true_intervals(gt_dir: str | Path) -> list[tuple[int, int]]:
 def score_twin_fragments(twin_dir: str | Path, gt_dir: str | Path) -> FragmentScore:
     """Score a twin's fragments.json against the ground truth's interaction intervals."""
     fragments: Fragments = read_fragments(twin_dir)
-    detected = [(f.first, f.last) for f in fragments.dynamic]
+    # a dynamic fragment that no part explains is reported (with its reason), not scored as a found interaction
+    detected = [(f.first, f.last) for f in fragments.dynamic if f.part is not None]
     return score_fragments(detected, true_intervals(gt_dir), fragments.fps)
 
 

@@ -17,8 +17,10 @@ from funrec.errors import FormatError
 from funrec.formats.twin import read_json_object
 from funrec.typed import FloatArray
 
-FRAGMENTS_FORMAT = "funrec-fragments/1"
-"""Format tag written into and required from fragments.json."""
+FRAGMENTS_FORMAT = "funrec-fragments/2"
+"""Format tag written into fragments.json (version 2 adds a dynamic fragment's ``reason``)."""
+READABLE_FORMATS = ("funrec-fragments/1", FRAGMENTS_FORMAT)
+"""Format tags :func:`read_fragments` accepts (version 1 has no ``reason``)."""
 FRAGMENTS_FILE = "fragments.json"
 """File name of the fragment list in a twin folder."""
 FRAGMENT_KINDS = ("static", "dynamic")
@@ -39,6 +41,8 @@ class Fragment:
     """Last frame (inclusive)."""
     part: str | None = None
     """For a dynamic fragment, the part that moved in it (None: not known or not explained)."""
+    reason: str | None = None
+    """For a dynamic fragment without a part, why no part was built from it (None otherwise)."""
 
     def __post_init__(self) -> None:
         if self.kind not in FRAGMENT_KINDS:
@@ -47,6 +51,8 @@ class Fragment:
             raise ValueError(f"fragment {self.index}: need 0 <= first <= last, got {self.first}, {self.last}")
         if self.part is not None and self.kind != "dynamic":
             raise ValueError(f"fragment {self.index}: only a dynamic fragment names a part")
+        if self.reason is not None and (self.kind != "dynamic" or self.part is not None):
+            raise ValueError(f"fragment {self.index}: only a dynamic fragment without a part gives a reason")
 
     @property
     def frames(self) -> npt.NDArray[np.int64]:
@@ -90,6 +96,8 @@ def fragments_to_json(fragments: Fragments) -> dict[str, Any]:
         row: dict[str, Any] = {"index": f.index, "kind": f.kind, "first": f.first, "last": f.last}
         if f.kind == "dynamic":
             row["part"] = f.part
+            if f.reason is not None:
+                row["reason"] = f.reason
         rows.append(row)
     return {"format": FRAGMENTS_FORMAT, "frame_count": fragments.frame_count, "fps": fragments.fps, "fragments": rows}
 
@@ -112,12 +120,14 @@ def read_fragments(path: str | Path) -> Fragments:
     if path.is_dir():
         path = path / FRAGMENTS_FILE
     data = read_json_object(path)
-    if data.get("format") != FRAGMENTS_FORMAT:
-        raise FormatError(path, f"format must be {FRAGMENTS_FORMAT!r}")
+    if data.get("format") not in READABLE_FORMATS:
+        raise FormatError(path, f"format must be one of {list(READABLE_FORMATS)}, got {data.get('format')!r}")
     try:
         rows = data["fragments"]
         fragments = tuple(
-            Fragment(int(r["index"]), str(r["kind"]), int(r["first"]), int(r["last"]), r.get("part")) for r in rows
+            Fragment(int(r["index"]), str(r["kind"]), int(r["first"]), int(r["last"]), r.get("part"),
+                     r.get("reason") if r.get("part") is None and r["kind"] == "dynamic" else None)
+            for r in rows
         )
         return Fragments(fragments, int(data["frame_count"]), float(data["fps"]), np.zeros(int(data["frame_count"])))
     except (KeyError, TypeError, ValueError) as error:

@@ -715,7 +715,31 @@ def estimate_articulation(
     return ArticulationEstimate(tuple(parts), moving, moving.astype(np.int64), labels.astype(np.int64))
 
 
+def fit_part(tracks: PointTracks, track_indices: IntArray, joint_type: str,
+             config: ArticulationConfig = ArticulationConfig(),  # noqa: B008 (frozen)
+             size_score: float = 0.0, evidence_score: float | None = None) -> PartEstimate | None:
+    """The part made of the given tracks, explained by ``joint_type`` (fitted to them alone);
+    None when that joint cannot follow them."""
+    p = tracks.p_world[:, track_indices]
+    vis = tracks.visible[:, track_indices] & np.isfinite(p).all(-1)
+    joint = _fit_joint(p, vis, config, np.random.default_rng(0), joint_type=joint_type)
+    if joint is None:
+        return None
+    return dataclasses.replace(_make_part(joint, np.asarray(track_indices)[joint["used"]], size_score),
+                               evidence_score=evidence_score)
+
+
+def refit_joint(part: PartEstimate, tracks: PointTracks, joint_type: str,
+                config: ArticulationConfig = ArticulationConfig()) -> PartEstimate | None:  # noqa: B008 (frozen)
+    """The tracks of ``part`` explained by ``joint_type``, fitted on their own (the other
+    explanation of the same motion, for a decision made on other evidence, e.g. depth); None
+    when that joint cannot follow them. ``part.track_indices`` index ``tracks``."""
+    return fit_part(tracks, part.track_indices, joint_type, config, part.size_score, part.evidence_score)
+
+
 __all__ = [
+    "fit_part",
+    "refit_joint",
     "ArticulationConfig",
     "ArticulationEstimate",
     "InteractionEvidence",

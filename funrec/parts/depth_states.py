@@ -118,6 +118,61 @@ def depth_states(
     Returns:
         (F,) state of every capture frame (rad or m), same canonical state as ``tracked_states``.
     """
+    states, _ = _search(capture, trajectory, joint_type, axis_world, pivot_world, p_world, tracked_frames, tracked_states,
+                        trusted, config, normal_world)
+    return states
+
+
+def depth_cost(
+    capture: Capture,
+    trajectory: CameraTrajectory,
+    joint_type: str,
+    axis_world: FloatArray,
+    pivot_world: FloatArray | None,
+    p_world: FloatArray,
+    config: DepthStateConfig = DepthStateConfig(),  # noqa: B008 (frozen, immutable default)
+) -> float:
+    """How well a joint hypothesis explains the depth of a capture, from depth alone.
+
+    The same search as :func:`depth_states` without tracked states: the mean point cost (0: every
+    posed point on the observed surface; 1: every point seen through) of the best state chain,
+    averaged over the frames that see the part. Two joint types fitted to the same part can be
+    compared by it without any texture: a door turned by a slide leaves its points in the air.
+
+    Args: as :func:`depth_states` (``p_world`` (M, 3) canonical part points, world frame).
+
+    Returns:
+        Mean cost in [0, 1]; NaN when no frame sees ``config.min_points`` part points.
+    """
+    return depth_fit(capture, trajectory, joint_type, axis_world, pivot_world, p_world, config)[1]
+
+
+def depth_fit(
+    capture: Capture,
+    trajectory: CameraTrajectory,
+    joint_type: str,
+    axis_world: FloatArray,
+    pivot_world: FloatArray | None,
+    p_world: FloatArray,
+    config: DepthStateConfig = DepthStateConfig(),  # noqa: B008 (frozen, immutable default)
+) -> tuple[FloatArray, float]:
+    """(F,) states of every frame from depth alone, and their mean cost (see :func:`depth_cost`)."""
+    none = np.zeros(0, np.int64)
+    return _search(capture, trajectory, joint_type, axis_world, pivot_world, p_world, none, np.zeros(0),
+                   np.zeros(0, bool), config, None)
+
+
+def point_cost(depth_m: FloatArray, K: FloatArray, T_camera_world: FloatArray, p_world: FloatArray,
+               config: DepthStateConfig = DepthStateConfig()) -> float:  # noqa: B008 (frozen)
+    """Mean cost of points ``p_world`` (M, 3) against one depth image (H, W), as the search scores
+    a state: 0 on the observed surface, 1 seen through, ``occluded_cost`` hidden or outside."""
+    return float(_frame_cost(depth_m, K, T_camera_world, p_world[None], None, config)[0][0])
+
+
+def _search(capture: Capture, trajectory: CameraTrajectory, joint_type: str, axis_world: FloatArray,
+            pivot_world: FloatArray | None, p_world: FloatArray, tracked_frames: IntArray, tracked_states: FloatArray,
+            trusted: BoolArray, config: DepthStateConfig, normal_world: FloatArray | None) -> tuple[FloatArray, float]:
+    """(F,) states of :func:`depth_states` and the mean depth cost of the chain over the frames that see the part."""
     F = len(capture)
     revolute = joint_type == "revolute"
     step = config.revolute_step_rad if revolute else config.prismatic_step_m
@@ -132,15 +187,19 @@ def depth_states(
     for frame in range(F):
         cost[frame], seen[frame] = _frame_cost(capture.depth_m(frame), K, invert_transform(trajectory.T_world_camera[frame]),
                                                p_grid, n_grid, config)
-    cost[seen < config.min_points] = 0.0
+    seeing = seen >= config.min_points
+    cost[~seeing] = 0.0
+    depth_only = cost.copy()
     sigma = config.track_sigma_rad if revolute else config.track_sigma_m
     for frame, state in zip(np.asarray(tracked_frames)[trusted], np.asarray(tracked_states)[trusted]):
         cost[frame] += 0.5 * ((grid - state) / sigma) ** 2
     speed = config.max_speed_rad if revolute else config.max_speed_m
-    states = grid[_min_cost_chain(cost, round(speed / step), config.change_cost)]
-    logger.info("depth states: %d of %d frames see >= %d part points; range [%.3f, %.3f]", int((seen >= config.min_points).sum()),
+    chain = _min_cost_chain(cost, round(speed / step), config.change_cost)
+    states = grid[chain]
+    logger.info("depth states: %d of %d frames see >= %d part points; range [%.3f, %.3f]", int(seeing.sum()),
                 F, config.min_points, states.min(), states.max())
-    return states
+    mean_cost = float(depth_only[np.arange(F), chain][seeing].mean()) if seeing.any() else float("nan")
+    return states, mean_cost
 
 
 def _frame_cost(depth_m: FloatArray, K: FloatArray, T_camera_world: FloatArray, p_grid: FloatArray,
@@ -223,4 +282,4 @@ def _min_cost_chain(cost: FloatArray, max_steps: int, change_cost: float) -> Int
     return path
 
 
-__all__ = ["DepthStateConfig", "depth_states", "oriented_normals"]
+__all__ = ["DepthStateConfig", "depth_cost", "depth_fit", "depth_states", "oriented_normals", "point_cost"]

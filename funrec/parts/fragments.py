@@ -182,17 +182,19 @@ def motion_span(frames: npt.ArrayLike, states: npt.ArrayLike, fps: float,
     return first, last
 
 
-def fragments_from_spans(spans: list[tuple[int, int]], frame_count: int, parts: list[str | None] | None = None
-                         ) -> tuple[Fragment, ...]:
+def fragments_from_spans(spans: list[tuple[int, int]], frame_count: int, parts: list[str | None] | None = None,
+                         reasons: list[str | None] | None = None) -> tuple[Fragment, ...]:
     """Consecutive fragments covering ``frame_count`` frames: the dynamic spans (sorted, disjoint,
-    inclusive) with their ``parts`` names, and static fragments between them."""
+    inclusive) with their ``parts`` names (and, where a part is None, the ``reasons`` why), and
+    static fragments between them."""
     parts = [None] * len(spans) if parts is None else parts
+    reasons = [None] * len(spans) if reasons is None else reasons
     out: list[Fragment] = []
     start = 0
-    for (a, b), part in zip(spans, parts, strict=True):
+    for (a, b), part, reason in zip(spans, parts, reasons, strict=True):
         if a > start:
             out.append(Fragment(len(out), "static", start, a - 1))
-        out.append(Fragment(len(out), "dynamic", a, b, part))
+        out.append(Fragment(len(out), "dynamic", a, b, part, reason if part is None else None))
         start = b + 1
     if start < frame_count:
         out.append(Fragment(len(out), "static", start, frame_count - 1))

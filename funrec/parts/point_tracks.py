@@ -2,7 +2,9 @@
 
 KLT tracks with a forward-backward check, re-seeded on a uniform grid (plus corners)
 wherever no live track is near, so that surfaces revealed during the interaction (the
-inside of a cabinet) get tracks too. Classical stand-in for the paper's TAPIP3D.
+inside of a cabinet) get tracks too. Where a point has too little texture for KLT (a plain
+painted door), it is carried by dense DIS optical flow instead (:mod:`funrec.camera.flow`),
+checked forward and backward the same way. Classical stand-in for the paper's TAPIP3D.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import cv2
 import numpy as np
 
 from funrec.camera.features import depth_edges, detect_corners, lift, mask_at, sample_depth, track_klt
+from funrec.camera.flow import FlowConfig, dense_flow, track_flow
 from funrec.camera.tracking import CameraTrajectory
 from funrec.formats.capture import Capture
 from funrec.geometry.transforms import transform_points
@@ -118,6 +121,17 @@ class PointTrackConfig:
     either surface."""
     hand_dilation_px: int = 9
     """Hand masks are grown by this many pixels; tracks there die and none are seeded."""
+    dense_flow: bool = False
+    """Carry points that KLT loses (no texture to lock on to) along dense DIS optical flow, and
+    seed grid points regardless of texture (``min_texture`` then only orders the seeds of a
+    cell). Off by default, measured: on the plain bench family's plain_rev_cabinet_left_00 it
+    turned "no part" into a wrong part, because on a flat painted panel DIS drags the static
+    neighbour door along with the moving one and its forward-backward check agrees (tests/test_flow.py).
+    Plain fronts get their part from depth instead (:mod:`funrec.parts.depth_proposal`)."""
+    flow: FlowConfig = FlowConfig()
+    """Dense flow settings (used with ``dense_flow``)."""
+    flow_max_forward_backward_px: float = 1.0
+    """Round-trip error above which a flow-carried track dies, pixels (as for KLT)."""
 
 
 @dataclass
@@ -175,7 +189,7 @@ def _best_in_cells(gray: UInt8Array, free: BoolArray, step: float, min_texture: 
     side = max(2, int(round(step)))
     rows, cols = H // side, W // side
     texture = cv2.cornerMinEigenVal(gray.astype(np.float32) / 255.0, blockSize=7, ksize=3)
-    score = np.where(free, texture, 0.0)[: rows * side, : cols * side]
+    score = np.where(free, texture, -np.inf)[: rows * side, : cols * side]  # a taken pixel never seeds
     cells = score.reshape(rows, side, cols, side).transpose(0, 2, 1, 3).reshape(rows, cols, side * side)
     best = cells.argmax(-1)
     good = np.take_along_axis(cells, best[..., None], -1)[..., 0] > min_texture
@@ -206,7 +220,7 @@ def _seed(gray: UInt8Array, depth_m: FloatArray, allowed: BoolArray, live_uv: Fl
     corners = detect_corners(gray, free, min(budget, config.corners_per_seed), 0.01, radius)
     if len(corners):
         block(corners)
-    grid = _best_in_cells(gray, free, step, config.min_texture)
+    grid = _best_in_cells(gray, free, step, -1.0 if config.dense_flow else config.min_texture)
     return np.concatenate([corners, grid])[:budget]
 
 
@@ -251,8 +265,15 @@ def track_points(
         alive = np.zeros(len(state.ids), dtype=bool)
         p_world = np.full((len(state.ids), 3), np.nan)
         if previous_gray is not None and len(state.ids):
-            state.uv, alive = track_klt(previous_gray, gray, state.uv, config.klt_window_px,
-                                        config.klt_pyramid_levels, config.klt_max_forward_backward_px)
+            uv_klt, alive = track_klt(previous_gray, gray, state.uv, config.klt_window_px,
+                                      config.klt_pyramid_levels, config.klt_max_forward_backward_px)
+            if config.dense_flow and not alive.all():
+                uv_flow, ok_flow = track_flow(dense_flow(previous_gray, gray, config.flow),
+                                              dense_flow(gray, previous_gray, config.flow), state.uv,
+                                              config.flow_max_forward_backward_px)
+                uv_klt = np.where(alive[:, None], uv_klt, uv_flow)
+                alive |= ok_flow
+            state.uv = uv_klt
             alive &= mask_at(allowed, state.uv)
             z = sample_depth(depth_m, state.uv, config.depth_window_px, config.depth_max_spread, config.subpixel_depth)
             p_world = transform_points(T_world_camera, lift(state.uv, z, K))

@@ -1,0 +1,332 @@
+"""A part and its joint proposed from depth alone: the surface that left, and the joint that moves it.
+
+Point tracks need texture; a plain painted door has none, so its tracks are too few to build a
+part from. Depth needs no texture. The surface of a door or a sliding panel that the person moved
+*leaves*: pixels of the first frame of the fragment whose surface a later frame sees through
+(free-space violations, :mod:`funrec.parts.scene_change`) lie on the part at its canonical state.
+Their dominant plane is the part's front; joints are hypothesised from it (a turn about each edge
+of its extent, a slide along its normal or along either in-plane direction) and each is scored by
+the 1-DoF search of the part's state in every frame's depth (:func:`funrec.parts.depth_states.depth_cost`).
+The best hypothesis is kept when it explains the depth clearly better than a part that did not
+move. The paper proposes parts with a VLM and tracks them with TAPIP3D; this is the geometric
+stand-in behind the same output, 3D tracks of the part (:func:`proposal_tracks`).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from funrec.camera.tracking import CameraTrajectory
+from funrec.formats.capture import Capture
+from funrec.geometry.camera import backproject
+from funrec.geometry.joints import joint_transforms
+from funrec.geometry.transforms import invert_transform, transform_points
+from funrec.parts.depth_states import DepthStateConfig, depth_cost, depth_fit, depth_states, point_cost
+from funrec.parts.point_tracks import PointTracks
+from funrec.typed import BoolArray, FloatArray, IntArray
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class DepthProposalConfig:
+    """Settings of :func:`propose_part`; lengths in metres."""
+
+    enabled: bool = True
+    """Propose a part from depth where the tracks found none (off: tracks only; ablation)."""
+    work_width_px: int = 160
+    """Depth images are subsampled to about this width: a door covers thousands of pixels even
+    at 160 px, and each hypothesis is scored on a few hundred points."""
+    margin_m: float = 0.03
+    """A first-frame surface point is seen through when a later frame's depth there is farther
+    by this plus ``margin_per_m`` times its depth (as :class:`~funrec.parts.scene_change.SceneChangeConfig`:
+    several sigma of Kinect-class noise plus camera pose error)."""
+    margin_per_m: float = 0.03
+    """Depth-proportional part of the margin."""
+    min_frames: int = 3
+    """A point must be seen through in at least this many frames: one frame of pose error or a
+    flicker at a depth edge is not a surface that left."""
+    hand_dilation_px: int = 3
+    """Hand masks (at the work resolution) are grown by this many pixels: a hand that moved away
+    is not a part."""
+    plane_tolerance_m: float = 0.012
+    """Points within this of the front plane belong to it (a painted front is flat to millimetres;
+    Kinect noise is ~3 mm at 1 m)."""
+    min_points: int = 40
+    """Fewer points that left (at the work resolution) make no proposal: 40 pixels at 160 px wide
+    are a 10 x 15 cm patch at 1.5 m."""
+    max_points: int = 300
+    """Points scored per hypothesis at most (evenly subsampled)."""
+    hinge_offsets_m: tuple[float, ...] = (-0.03, 0.0, 0.03, 0.06)
+    """Offsets of a hinge line outwards from the edge of the surface that left: the strip by the
+    hinge barely moves, so it never leaves by the margin and the hinge lies a little beyond it."""
+    arrival_frames: int = 8
+    """Frames of the span's second half on which the surfaces that arrived in front of frame 0's
+    view are moved back by each hypothesis (:func:`_return_cost`)."""
+    min_gain: float = 0.5
+    """The best hypothesis must cost at most this fraction of the part held still (state 0 in every
+    frame): less, and depth does not say the surface moved as a joint moves it."""
+    search: DepthStateConfig = DepthStateConfig(revolute_step_rad=np.deg2rad(2.0), prismatic_step_m=0.015)
+    """The 1-DoF state search that scores the hypotheses: 2 deg and 1.5 cm steps move a front's
+    points by less than the 3 cm depth tolerance, at a quarter of the fine search's cost."""
+    depth: DepthStateConfig = DepthStateConfig()
+    """The fine 1-DoF search of the chosen joint's states."""
+
+
+@dataclass(frozen=True)
+class DepthProposal:
+    """A part proposed from depth, world frame."""
+
+    joint_type: str
+    """"revolute" or "prismatic"."""
+    axis_world: FloatArray
+    """(3,) unit axis."""
+    pivot_world: FloatArray | None
+    """(3,) a point on the revolute axis; None for prismatic."""
+    p_world: FloatArray
+    """(M, 3) points of the part at its canonical state (the first frame)."""
+    states: FloatArray
+    """(F,) state of every frame, 0 at the first."""
+    cost: float
+    """Mean depth cost of the proposal (0 perfect, 1 every point seen through)."""
+    static_cost: float
+    """Mean depth cost of the same points held still."""
+
+
+HandMask = Callable[[int], BoolArray | None]
+"""hand(frame) -> (H, W) bool hand mask of a frame, or None."""
+
+
+def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask | None = None,
+                 config: DepthProposalConfig = DepthProposalConfig()) -> DepthProposal | None:  # noqa: B008 (frozen)
+    """Propose the part that moved in a span of frames, and its joint, from depth alone.
+
+    Args:
+        capture: the span's frames; frame 0 shows the part at rest (the canonical state).
+        trajectory: the span's ``T_world_camera`` (F, 4, 4).
+        hand: hand masks to leave out; None: none known.
+        config: settings.
+
+    Returns:
+        The proposal, or None when too little surface left, or no joint explains its motion.
+    """
+    if not config.enabled or len(capture) < 3:
+        return None
+    views = _Views(capture, trajectory, hand, config)
+    p_left = _surface_that_left(views)
+    if len(p_left) < config.min_points:
+        logger.info("depth proposal: %d points left the first frame's surface (< %d): none", len(p_left), config.min_points)
+        return None
+    front = _front_plane(p_left, config.plane_tolerance_m)
+    if front is None:
+        return None
+    points, normal, u_axis, v_axis = front
+    if len(points) > config.max_points:
+        points = points[np.linspace(0, len(points) - 1, config.max_points).astype(int)]
+    static = depth_cost(capture, trajectory, "prismatic", normal, None, points,
+                        _held_still(config.depth))
+    # frames to test what arrived on: evenly spread over the second half, where the part stands moved
+    F = len(capture)
+    arrived = _arrived(views, np.unique(np.linspace(F // 2, F - 1, config.arrival_frames).astype(int)))
+    best: tuple[float, str, FloatArray, FloatArray | None] | None = None
+    for joint_type, axis, pivot in _hypotheses(points, normal, u_axis, v_axis, config.hinge_offsets_m):
+        states, cost = depth_fit(capture, trajectory, joint_type, axis, pivot, points, config.search)
+        if not np.isfinite(cost):
+            continue
+        cost += _return_cost(arrived, joint_type, axis, pivot, states, views, config.search)
+        logger.debug("hypothesis %s axis %s pivot %s: cost %.3f", joint_type, axis.round(3),
+                     None if pivot is None else pivot.round(3), cost)
+        if best is None or cost < best[0]:
+            best = (cost, joint_type, axis, pivot)
+    static += _return_cost(arrived, "prismatic", normal, None, np.zeros(F), views, config.search)
+    if best is None or not best[0] < config.min_gain * static:
+        logger.info("depth proposal: best cost %s vs still %.3f: no joint explains the surface that left",
+                    "-" if best is None else f"{best[0]:.3f}", static)
+        return None
+    cost, joint_type, axis, pivot = best
+    states = depth_states(capture, trajectory, joint_type, axis, pivot, points, np.zeros(1, np.int64), np.zeros(1),
+                          np.ones(1, bool), config.depth)
+    states = states - states[0]
+    if states[np.argmax(np.abs(states))] < 0:
+        axis, states = -axis, -states
+    logger.info("depth proposal: %s from %d points, cost %.3f (still %.3f), range [%.3f, %.3f] over %d frames",
+                joint_type, len(points), cost, static, states.min(), states.max(), F)
+    return DepthProposal(joint_type, axis, pivot, points, states, cost, static)
+
+
+def proposal_tracks(proposal: DepthProposal, capture: Capture, trajectory: CameraTrajectory,
+                    tolerance_m: float = 0.03) -> PointTracks:
+    """3D tracks of a proposal's points: each canonical point moved by the joint to every frame's
+    state, visible where that frame's depth sees it there (within ``tolerance_m`` along the ray).
+
+    Returns:
+        PointTracks over the span's F frames, one track per proposal point.
+    """
+    F, M = len(capture), len(proposal.p_world)
+    T = joint_transforms(proposal.joint_type, proposal.axis_world, proposal.pivot_world, proposal.states)  # (F, 4, 4)
+    p_world = np.einsum("fij,mj->fmi", T[:, :3, :3], proposal.p_world) + T[:, None, :3, 3]
+    K = capture.intrinsics.K
+    uv = np.full((F, M, 2), np.nan)
+    visible = np.zeros((F, M), dtype=bool)
+    for frame in range(F):
+        q = transform_points(invert_transform(trajectory.T_world_camera[frame]), p_world[frame])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = K[0, 0] * q[:, 0] / q[:, 2] + K[0, 2]
+            v = K[1, 1] * q[:, 1] / q[:, 2] + K[1, 2]
+        depth_m = capture.depth_m(frame)
+        H, W = depth_m.shape
+        inside = (q[:, 2] > 0.1) & (u >= 0) & (u <= W - 1) & (v >= 0) & (v <= H - 1)
+        d = np.zeros(M)
+        d[inside] = depth_m[np.rint(v[inside]).astype(int), np.rint(u[inside]).astype(int)]
+        seen = inside & (d > 0) & (np.abs(d - q[:, 2]) < tolerance_m)
+        visible[frame] = seen
+        uv[frame, seen] = np.stack([u[seen], v[seen]], 1)
+    return PointTracks(p_world=np.where(visible[..., None], p_world, np.nan), uv=uv, visible=visible)
+
+
+def _held_still(config: DepthStateConfig) -> DepthStateConfig:
+    """The search with a single state (0): the cost of a part that did not move."""
+    from dataclasses import replace
+
+    return replace(config, prismatic_limit_m=0.0, prismatic_step_m=1.0)
+
+
+class _Views:
+    """Depth images of a span at the work resolution, hand pixels left out, and the free-space test."""
+
+    def __init__(self, capture: Capture, trajectory: CameraTrajectory, hand: HandMask | None,
+                 config: DepthProposalConfig) -> None:
+        self.capture, self.trajectory, self.hand, self.config = capture, trajectory, hand, config
+        self.step = max(1, capture.intrinsics.width // config.work_width_px)
+        K = capture.intrinsics.K.astype(np.float64).copy()
+        K[:2, 2] -= self.step // 2  # subsampled pixel j is full-resolution pixel step // 2 + j * step
+        K[:2, :] /= self.step
+        self.K = K
+        self._cache: dict[int, tuple[FloatArray, BoolArray, FloatArray]] = {}
+
+    def view(self, frame: int) -> tuple[FloatArray, BoolArray, FloatArray]:
+        """(depth, valid, near): depth (h, w), valid pixels, and the 3x3 min-filtered depth (a point
+        next to a depth edge is compared with the nearest surface around it)."""
+        if frame not in self._cache:
+            s, kernel = self.step, np.ones((3, 3), np.uint8)
+            depth = self.capture.depth_m(frame)[s // 2 :: s, s // 2 :: s].astype(np.float64)
+            valid = depth > 0
+            mask = None if self.hand is None else self.hand(frame)
+            if mask is not None:
+                valid &= ~(cv2.dilate(mask[s // 2 :: s, s // 2 :: s].astype(np.uint8), kernel,
+                                      iterations=self.config.hand_dilation_px) > 0)
+            near = cv2.erode(np.where(valid, depth, 1e3).astype(np.float32), kernel).astype(np.float64)
+            self._cache[frame] = (depth, valid, near)
+        return self._cache[frame]
+
+    def points(self, frame: int) -> FloatArray:
+        """(N, 3) world points of a frame's valid pixels."""
+        depth, valid, _ = self.view(frame)
+        p_camera = backproject(np.where(valid, depth, 0.0), self.K).reshape(-1, 3)[valid.ravel()]
+        return transform_points(self.trajectory.T_world_camera[frame], p_camera)
+
+    def seen_through(self, p_world: FloatArray, frame: int) -> BoolArray:
+        """(N,) True where ``frame`` sees farther than the point by the margin (the point is not there)."""
+        _, valid, near = self.view(frame)
+        q = transform_points(invert_transform(self.trajectory.T_world_camera[frame]), p_world)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = np.rint(self.K[0, 0] * q[:, 0] / q[:, 2] + self.K[0, 2])
+            v = np.rint(self.K[1, 1] * q[:, 1] / q[:, 2] + self.K[1, 2])
+        h, w = valid.shape
+        inside = (q[:, 2] > 0.1) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        out = np.zeros(len(p_world), dtype=bool)
+        rows, cols, z = v[inside].astype(int), u[inside].astype(int), q[inside, 2]
+        observed = near[rows, cols]
+        margin = self.config.margin_m + self.config.margin_per_m * z
+        out[inside] = valid[rows, cols] & (observed < 1e3) & (observed > z + margin)
+        return out
+
+
+def _surface_that_left(views: _Views) -> FloatArray:
+    """(M, 3) world points of frame 0's surface that at least ``min_frames`` later frames see through."""
+    p_world = views.points(0)
+    left = np.zeros(len(p_world), dtype=np.int64)
+    for frame in range(1, len(views.capture)):
+        left += views.seen_through(p_world, frame)
+    return p_world[left >= views.config.min_frames]
+
+
+def _arrived(views: _Views, frames: IntArray) -> list[tuple[int, FloatArray]]:
+    """(frame, (N, 3) world points) of surfaces in front of what frame 0 saw: frame 0 sees through them."""
+    out = []
+    for frame in frames:
+        p_world = views.points(int(frame))
+        out.append((int(frame), p_world[views.seen_through(p_world, 0)]))
+    return out
+
+
+def _return_cost(arrived: list[tuple[int, FloatArray]], joint_type: str, axis: FloatArray, pivot: FloatArray | None,
+                 states: FloatArray, views: _Views, config: DepthStateConfig) -> float:
+    """Mean cost of the arrived surfaces moved back to the canonical state by the joint, against
+    frame 0's depth: the moved part must be what arrived, so moved back it lies on the closed front.
+    A slide that carries a turned door's points along coplanar neighbouring fronts explains the
+    surface that left, but not the leaf standing out in front of the cabinet."""
+    costs, weights = [], []
+    T_camera0_world = invert_transform(views.trajectory.T_world_camera[0])
+    depth0 = views.capture.depth_m(0)
+    for frame, p_world in arrived:
+        if len(p_world) == 0:
+            continue
+        T = joint_transforms(joint_type, axis, pivot, states[frame : frame + 1])[0]
+        x = transform_points(invert_transform(T), p_world)
+        costs.append(point_cost(depth0, views.capture.intrinsics.K, T_camera0_world, x, config))
+        weights.append(len(p_world))
+    return float(np.average(costs, weights=weights)) if costs else 0.0
+
+
+def _front_plane(p: FloatArray, tolerance_m: float, iterations: int = 200
+                 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray] | None:
+    """The dominant plane of ``p``: its inlier points, unit normal and two in-plane unit axes
+    (principal directions of the inliers); None if no plane holds 30 % of the points.
+
+    A plain three-point RANSAC with a fixed seed, written here because Open3D's ``segment_plane``
+    (the stack's plane fit) takes no seed in the installed version, and a twin must not change
+    from one run to the next."""
+    rng = np.random.default_rng(0)
+    scored = p[np.linspace(0, len(p) - 1, min(len(p), 2000)).astype(int)]  # bounds the (iterations, n) test
+    samples = rng.integers(0, len(p), size=(iterations, 3))
+    a, b, c = p[samples[:, 0]], p[samples[:, 1]], p[samples[:, 2]]
+    normals = np.cross(b - a, c - a)
+    norms = np.linalg.norm(normals, axis=1)
+    ok = norms > 1e-9
+    if not ok.any():
+        return None
+    normals, a = normals[ok] / norms[ok, None], a[ok]
+    counts = (np.abs((scored[None, :, :] - a[:, None, :]) @ normals[..., None])[..., 0] < tolerance_m).sum(1)
+    best = int(np.argmax(counts))
+    inliers = np.abs((p - a[best]) @ normals[best]) < tolerance_m
+    if inliers.sum() < 0.3 * len(p):
+        return None
+    x = p[inliers]
+    centred = x - x.mean(0)
+    _, _, vt = np.linalg.svd(centred, full_matrices=False)  # least-squares refit of the inliers' plane
+    normal, u_axis = vt[2], vt[0]
+    return x, normal, u_axis, np.cross(normal, u_axis)
+
+
+def _hypotheses(p: FloatArray, normal: FloatArray, u_axis: FloatArray, v_axis: FloatArray,
+                hinge_offsets_m: tuple[float, ...]) -> list[tuple[str, FloatArray, FloatArray | None]]:
+    """Joint hypotheses for a front in the plane (normal, u, v): slides along the normal, u and v;
+    turns about lines along u or v through each edge of the points' extent, offset outwards."""
+    out: list[tuple[str, FloatArray, FloatArray | None]] = [("prismatic", a.copy(), None) for a in (normal, u_axis, v_axis)]
+    centre = p.mean(0)
+    for along, across in ((u_axis, v_axis), (v_axis, u_axis)):
+        coordinate = (p - centre) @ across
+        low, high = np.percentile(coordinate, [1.0, 99.0])
+        for edge, outwards in ((low, -1.0), (high, 1.0)):
+            for offset in hinge_offsets_m:
+                out.append(("revolute", along.copy(), centre + (edge + outwards * offset) * across))
+    return out
+
+
+__all__ = ["DepthProposal", "DepthProposalConfig", "propose_part", "proposal_tracks"]
