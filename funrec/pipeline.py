@@ -97,6 +97,12 @@ class ReconstructConfig:
     off: the world is camera 0's frame."""
     use_hand_masks: bool = True
     """Use the capture's hand masks when it has them (off: behave as if it had none)."""
+    hands_first: bool = True
+    """Without hand masks in the capture, detect hands and arms right after camera tracking
+    (:func:`~funrec.surfaces.hands.detect_hands` without parts) and feed them to scene change,
+    fragments, tracks and articulation as capture masks are fed: a rigid textured arm is otherwise
+    the most trackable moving thing in the video, and its tracks become a part. Detected again
+    with the parts known for fusion and affordances. Off: ablation."""
     use_object_masks: bool = True
     """Use the capture's interacted-object masks when it has them."""
     align_fragments: bool = True
@@ -170,6 +176,16 @@ def _evidence(capture: Capture, config: ReconstructConfig) -> InteractionEvidenc
     if capture.has_hand_masks and config.use_hand_masks:
         return InteractionEvidence.from_hand_masks(lambda frame: capture.mask("hand", frame), confidence)
     return None
+
+
+def _hands_first(capture: Capture, trajectory: CameraTrajectory, folder: Path, config: ReconstructConfig,
+                 progress: Callable[[int, int], None] | None) -> Capture:
+    """The capture with hand masks detected before any part is known, written to ``folder`` (the
+    twin's masks/hand, replaced later by the detection that knows the parts)."""
+    hands = detect_hands(capture, trajectory, (), (), config.affordances.hands, progress=progress)
+    write_hand_masks(folder, hands)
+    paths = tuple(folder / f"{frame:06d}.png" for frame in range(len(capture)))
+    return dataclasses.replace(capture, mask_paths={**capture.mask_paths, "hand": paths})
 
 
 def _hand_visible(capture: Capture) -> npt.NDArray[np.bool_] | None:
@@ -385,6 +401,10 @@ def _reconstruct(capture_dir: str | Path, out_dir: str | Path, config: Reconstru
 
     with TwinWriter(out_dir, overwrite=overwrite) as writer:
         trajectory = timed("camera", track_camera, capture, config.tracking, progress=stage_progress("camera"))
+        observed = capture  # the capture as recorded, for the final hand detection (which knows the parts)
+        if config.hands_first and not capture.has_hand_masks:
+            capture = timed("hands first", _hands_first, capture, trajectory, writer.path(TWIN_HAND_MASKS), config,
+                            stage_progress("hands first"))
         change = timed("scene change", scene_change, capture, trajectory.T_world_camera, config.scene_change,
                        progress=stage_progress("scene change"))
         fragments = find_fragments(change, capture.intrinsics.fps, config.scene_change.lag_frames, _hand_visible(capture),
@@ -437,7 +457,7 @@ def _reconstruct(capture_dir: str | Path, out_dir: str | Path, config: Reconstru
         # Hands before fusion, so that detected hands and arms (no masks in the capture) stay out of the static
         # scene as masked ones do; image-space masks, unchanged by the gravity alignment that follows.
         moved = [_articulated(f"part_{k}", motion, np.eye(4)) for k, motion in enumerate(motions)]
-        hands = timed("hands", detect_hands, capture, trajectory, moved, all_masks, config.affordances.hands,
+        hands = timed("hands", detect_hands, observed, trajectory, moved, all_masks, config.affordances.hands,
                       progress=stage_progress("hands"))
         meshes = timed(
             "fusion",
