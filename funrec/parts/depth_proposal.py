@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -61,7 +61,13 @@ class DepthProposalConfig:
     """Fewer points that left (at the work resolution) make no proposal: 40 pixels at 160 px wide
     are a 10 x 15 cm patch at 1.5 m."""
     max_points: int = 300
-    """Points scored per hypothesis at most (evenly subsampled)."""
+    """Points of the proposed part at most (evenly subsampled): its tracks and its fine state search."""
+    hypothesis_points: int = 150
+    """Points each hypothesis is scored on (evenly subsampled): the score is a mean cost, and a
+    door's 150 points at 160 px still cover it every ~3 cm."""
+    score_stride: int = 2
+    """Hypotheses are scored on every this-many-th frame (a door turns ~4 deg per frame at 15 fps;
+    the chain's speed bound is scaled to match)."""
     hinge_offsets_m: tuple[float, ...] = (-0.03, 0.0, 0.03, 0.06)
     """Offsets of a hinge line outwards from the edge of the surface that left: the strip by the
     hinge barely moves, so it never leaves by the margin and the hinge lies a little beyond it."""
@@ -128,16 +134,20 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
     points, normal, u_axis, v_axis = front
     if len(points) > config.max_points:
         points = points[np.linspace(0, len(points) - 1, config.max_points).astype(int)]
-    static = depth_cost(capture, trajectory, "prismatic", normal, None, points,
-                        _held_still(config.depth))
+    # Hypotheses are scored on the work-resolution depth of every ``score_stride``-th frame, held in
+    # memory once (a few MB), not decoded again per hypothesis from the full images.
+    coarse, coarse_poses, search = _coarse(views, config)
+    hypothesis_points = points[np.linspace(0, len(points) - 1, min(len(points), config.hypothesis_points)).astype(int)]
+    static = depth_cost(coarse, coarse_poses, "prismatic", normal, None, hypothesis_points, _held_still(search))
     # frames to test what arrived on: evenly spread over the second half, where the part stands moved
     F = len(capture)
     arrived = _arrived(views, np.unique(np.linspace(F // 2, F - 1, config.arrival_frames).astype(int)))
     best: tuple[float, str, FloatArray, FloatArray | None] | None = None
     for joint_type, axis, pivot in _hypotheses(points, normal, u_axis, v_axis, config.hinge_offsets_m):
-        states, cost = depth_fit(capture, trajectory, joint_type, axis, pivot, points, config.search)
+        coarse_states, cost = depth_fit(coarse, coarse_poses, joint_type, axis, pivot, hypothesis_points, search)
         if not np.isfinite(cost):
             continue
+        states = np.interp(np.arange(F), np.arange(0, F, config.score_stride), coarse_states)
         cost += _return_cost(arrived, joint_type, axis, pivot, states, views, config.search)
         logger.debug("hypothesis %s axis %s pivot %s: cost %.3f", joint_type, axis.round(3),
                      None if pivot is None else pivot.round(3), cost)
@@ -189,10 +199,24 @@ def proposal_tracks(proposal: DepthProposal, capture: Capture, trajectory: Camer
     return PointTracks(p_world=np.where(visible[..., None], p_world, np.nan), uv=uv, visible=visible)
 
 
+def _coarse(views: _Views, config: DepthProposalConfig) -> tuple[object, CameraTrajectory, DepthStateConfig]:
+    """A capture-like view of every ``score_stride``-th frame's work-resolution depth, its poses,
+    and the search settings for it (speeds per kept frame)."""
+    from types import SimpleNamespace
+
+    frames = list(range(0, len(views.capture), config.score_stride))
+    depth = [np.where(views.view(f)[1], views.view(f)[0], 0.0) for f in frames]
+    span = type("CoarseDepth", (), {"__len__": lambda self: len(depth), "depth_m": lambda self, i: depth[i],
+                                    "intrinsics": SimpleNamespace(K=views.K)})()
+    poses = SimpleNamespace(T_world_camera=views.trajectory.T_world_camera[frames])
+    stride = config.score_stride
+    search = replace(config.search, max_speed_rad=config.search.max_speed_rad * stride,
+                     max_speed_m=config.search.max_speed_m * stride)
+    return span, poses, search  # type: ignore[return-value]
+
+
 def _held_still(config: DepthStateConfig) -> DepthStateConfig:
     """The search with a single state (0): the cost of a part that did not move."""
-    from dataclasses import replace
-
     return replace(config, prismatic_limit_m=0.0, prismatic_step_m=1.0)
 
 
