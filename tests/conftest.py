@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
+
+if TYPE_CHECKING:
+    from tests.helpers.stage_inputs import EstimatedRun
 
 
 @pytest.fixture(scope="session")
@@ -27,3 +31,21 @@ def smoke_captures(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     out = tmp_path_factory.mktemp("smoke")
     specs = {spec.name: spec for spec in smoke_suite()}
     return {name: generate_sequence(specs[name], out) for name in ("smoke_rev_00", "smoke_pri_00", "smoke_static_00")}
+
+
+@pytest.fixture(scope="session")
+def small_sequence(request: pytest.FixtureRequest) -> Path:
+    """A 40-frame 320x240 noisy kitchen with one revolute door (~25 s to generate, then cached
+    across test runs in pytest's cache folder)."""
+    from tests.helpers.stage_inputs import synth_sequence
+
+    return synth_sequence(request.config.cache.mkdir("funrec_synth"), "seg_rev_320", 7, "door", 40, 320, 240)
+
+
+@pytest.fixture(scope="session", params=["smoke_rev_00", "smoke_pri_00"])
+def estimated_run(request: pytest.FixtureRequest) -> EstimatedRun:
+    """Stages 1-5 on funrec.synth's smoke door and drawer: ~1 min per capture (plus ~45 s to
+    generate it the first time); slow tests only."""
+    from tests.helpers.stage_inputs import estimate_run, smoke_sequence
+
+    return estimate_run(request.param, smoke_sequence(request.config.cache.mkdir("funrec_synth"), request.param))

@@ -41,6 +41,7 @@ from funrec.formats.twin import TwinArticulation, make_part, write_articulation
 from funrec.geometry.joints import joint_transform, joint_transforms
 from funrec.geometry.transforms import make_transform, transform_points
 from funrec.surfaces.hands import HandConfig, detect_hands
+from tests.helpers.stage_inputs import ground_truth_inputs
 
 # --------------------------------------------------------------------------------------------
 # Known-answer scene: camera 0 is the world frame (OpenCV: x right, y down, z forward).
@@ -350,8 +351,6 @@ def _write_twin(twin: Path, capture_root: Path, trajectory: CameraTrajectory, pa
 
 
 def test_tiny_capture_contact_is_at_the_true_handle(tiny_capture: Path, tmp_path: Path) -> None:
-    from test_hands import ground_truth_inputs
-
     capture = load_capture(tiny_capture)
     # A twin world frame that is not camera 0, and parts tracked only while they move: the
     # metric must map both sides through frame 0 and move the true handle to the twin's
@@ -500,8 +499,6 @@ def test_front_plane_is_not_moved_onto_a_bar() -> None:
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["rev_cabinet_left_00", "pri_drawer_01", "multi_kitchen_01"])
 def test_bench_contact_points_with_ground_truth_inputs(name: str, tmp_path: Path) -> None:
-    from test_hands import ground_truth_inputs
-
     root = Path(__file__).resolve().parents[1] / "bench_suite" / name
     if not (root / "gt").is_dir():
         pytest.skip(f"{root} not generated")

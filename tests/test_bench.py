@@ -1,4 +1,4 @@
-"""Tests of funrec.bench.run on a two-sequence suite written by the test_evaluate fixture (no funrec.synth)."""
+"""Tests of funrec.bench.run on a two-sequence suite written by tests/helpers/tiny_sequence.py (no funrec.synth)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,6 @@ import sys
 from pathlib import Path
 
 import pytest
-from test_evaluate import write_tiny_sequence
 
 from funrec.bench import report as bench_report
 from funrec.bench import run as bench
@@ -17,6 +16,7 @@ from funrec.bench.run import BenchConfig, format_report, run_bench, summarize
 from funrec.config import add_config_arguments, config_from_args
 from funrec.errors import FunrecError
 from funrec.pipeline import ReconstructConfig
+from tests.helpers.tiny_sequence import write_tiny_sequence
 
 SEQUENCES = ("seq_a", "seq_b")
 

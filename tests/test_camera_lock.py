@@ -11,7 +11,7 @@ from funrec.parts.articulation import estimate_articulation
 from funrec.parts.camera_lock import unlock_camera
 from funrec.parts.fragment_tracks import WindowTracks
 from funrec.parts.point_tracks import PointTracks
-from tests.test_articulation import make_scene
+from tests.helpers.track_scenes import make_scene
 
 
 def _trajectory(T_world_camera: np.ndarray) -> CameraTrajectory:

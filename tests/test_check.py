@@ -12,7 +12,6 @@ import mujoco
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-from test_plan_scenes import PRISMATIC_CASE, REVOLUTE_CASE, write_gt_scene
 
 from funrec_robot import build_mujoco_model, default_robot_path, load_robot, reset_to_home, robot_indices
 from funrec_robot.check import CRITERIA, CheckConfig, check_plan
@@ -22,6 +21,7 @@ from funrec_robot.plan import plan_interaction
 from funrec_robot.plan_file import read_plan
 from funrec_robot.task import ArticulationTask
 from funrec_robot.task_sources import task_from_ground_truth
+from tests.helpers.robot_scenes import PRISMATIC_CASE, REVOLUTE_CASE, write_gt_scene
 
 AXIS_ERROR_DEG = 3.0
 """Axis error of the perturbed model (a reconstructed twin is off by a few degrees)."""

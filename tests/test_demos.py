@@ -34,7 +34,7 @@ def _check_joints_move_alike(output: str) -> None:
 
 
 def test_export_and_move_joints_on_a_written_twin(tmp_path):
-    from test_export_urdf import export  # the hand-built cabinet twin (a door and a drawer), exported fast
+    from tests.helpers.twins import export  # the hand-built cabinet twin (a door and a drawer), exported fast
 
     exports = export(tmp_path)
     output = _run("export_and_move_joints.py", "--twin", str(exports.mjcf.parent), timeout=300)

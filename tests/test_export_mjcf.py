@@ -10,11 +10,11 @@ import mujoco
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-from test_export_urdf import FAST_EXPORT, assert_part_pose, export, sample_states
 
 from funrec.export.simulation import SimulationExports
 from funrec.formats.twin import read_articulation
 from funrec.geometry.transforms import make_transform, transform_points
+from tests.helpers.twins import FAST_EXPORT, assert_part_pose, export, sample_states
 
 T_EXPORT_WORLD = make_transform(Rotation.from_rotvec([-0.2, 0.4, 1.1]).as_matrix(), [0.3, -2.0, 1.5])
 """A non-trivial export frame (what gravity alignment will later provide)."""

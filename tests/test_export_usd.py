@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-from test_export_urdf import FAST_EXPORT, assert_part_pose, export, sample_states
 
 from funrec.export.simulation import SimulationExports
 from funrec.formats.twin import read_articulation
 from funrec.geometry.transforms import make_transform, transform_points
+from tests.helpers.twins import FAST_EXPORT, assert_part_pose, export, sample_states
 
 pxr = pytest.importorskip("pxr")
 from pxr import Usd, UsdGeom, UsdPhysics  # noqa: E402

@@ -13,9 +13,6 @@ import numpy as np
 import pytest
 import trimesh
 
-# Shared synthetic-sequence helpers (tests/ is on sys.path under pytest's default import mode).
-from test_segmentation import EstimatedRun, estimated_run, synth_sequence, true_inputs, true_mask  # noqa: F401, F811 (fixture)
-
 from funrec.bench.metrics import chamfer_distance
 from funrec.errors import ReconstructionError
 from funrec.geometry.joints import joint_transforms
@@ -23,6 +20,7 @@ from funrec.geometry.transforms import invert_transform, transform_points
 from funrec.surfaces.fusion import _large_pieces, _raycaster, _render_depth, fuse_tsdf
 from funrec.surfaces.hands import HandMasks
 from funrec.surfaces.segmentation import PartMasks, encode_mask
+from tests.helpers.stage_inputs import EstimatedRun, true_inputs, true_mask
 
 TARGET_CD_M = 0.015
 """Project target: scene chamfer distance (static and part) <= 1.5 cm."""
@@ -31,12 +29,6 @@ SAMPLES = 100_000
 PART_CD_M = 0.02
 """Part mesh vs. the true part points at the canonical state, from estimated inputs: measured
 0.7-0.9 cm on the bench (640x480); 2 cm leaves room for 320x240 and upstream changes."""
-
-
-@pytest.fixture(scope="module")
-def small_sequence(request: pytest.FixtureRequest) -> Path:
-    """The cached 40-frame 320x240 door sequence of test_segmentation."""
-    return synth_sequence(request.config.cache.mkdir("funrec_synth"), "seg_rev_320", 7, "door", 40, 320, 240)
 
 
 def true_part_masks(root: Path, frames: np.ndarray) -> PartMasks:
@@ -153,7 +145,7 @@ import json, resource, sys
 import numpy as np
 from dataclasses import replace
 from pathlib import Path
-from test_segmentation import true_inputs, true_mask
+from tests.helpers.stage_inputs import true_inputs, true_mask
 from funrec.surfaces.fusion import FusionConfig, fuse_tsdf
 from funrec.surfaces.segmentation import PartMasks
 from funrec.camera.tracking import CameraTrajectory
@@ -180,7 +172,7 @@ def test_fuse_tsdf_memory_does_not_grow_with_frames(small_sequence: Path) -> Non
     rss = []
     for repeat in (1, 4):
         out = subprocess.run([sys.executable, "-c", _MEMORY_SCRIPT, str(small_sequence), str(repeat)],
-                             capture_output=True, text=True, check=True, cwd=Path(__file__).parent)
+                             capture_output=True, text=True, check=True, cwd=Path(__file__).parents[1])
         rss.append(json.loads(out.stdout.strip().splitlines()[-1]))
     extra_frames = rss[1]["frames"] - rss[0]["frames"]
     growth_mb = rss[1]["max_rss_mb"] - rss[0]["max_rss_mb"]
@@ -189,7 +181,7 @@ def test_fuse_tsdf_memory_does_not_grow_with_frames(small_sequence: Path) -> Non
 
 
 @pytest.mark.slow
-def test_fuse_tsdf_with_estimated_inputs(estimated_run: EstimatedRun) -> None:  # noqa: F811 (the fixture)
+def test_fuse_tsdf_with_estimated_inputs(estimated_run: EstimatedRun) -> None:
     """Stages 1-5 on a rendered door and drawer, then fusion: the scene chamfer distance meets the
     project target, and the part mesh is the part at its canonical state (the state of its first
     tracked frame), not at the most open one."""

@@ -1,8 +1,8 @@
 """Tests of funrec.surfaces.hands: capture masks pass through, detection on the tiny synthetic capture.
 
-``ground_truth_inputs`` builds the stage inputs of a generated capture from its ground truth
-(tests only; the library never reads gt/): camera poses mapped to a chosen twin world frame
-through frame 0, joints, true part masks and true part points.
+The stage inputs come from the capture's ground truth (``ground_truth_inputs`` in
+tests/helpers/stage_inputs.py): camera poses mapped to a chosen twin world frame through frame 0,
+joints, true part masks and true part points.
 """
 
 from __future__ import annotations
@@ -11,57 +11,17 @@ import dataclasses
 from pathlib import Path
 
 import numpy as np
-import numpy.typing as npt
 import pytest
-import trimesh
 
-from funrec.camera.tracking import CameraTrajectory
 from funrec.formats.capture import load_capture, read_mask
-from funrec.formats.ground_truth import read_ground_truth
 from funrec.formats.twin import ArticulatedPart, make_part
-from funrec.geometry.joints import joint_transform
-from funrec.geometry.transforms import invert_transform, transform_points
 from funrec.surfaces.hands import HandConfig, detect_hands, part_poses
-from funrec.surfaces.segmentation import PartMasks
+from tests.helpers.stage_inputs import ground_truth_inputs
 
 MIN_MEAN_IOU_TINY = 0.7
 """Mean per-frame IoU detection must reach on the tiny 80x60 capture without its masks (frames
 with a true hand). Measured 0.82: the forearm is 3-6 px wide there, so one pixel of boundary
 error costs 20-30 % IoU; the 640x480 bench reaches ~0.95."""
-
-
-def ground_truth_inputs(
-    capture_root: Path, T_twin_camera0: npt.ArrayLike, rebase: bool = False
-) -> tuple[CameraTrajectory, list[ArticulatedPart], list[PartMasks], list[np.ndarray]]:
-    """Trajectory, parts, part masks and canonical part points from a capture's gt/ folder.
-
-    Args:
-        capture_root: a generated capture with gt/.
-        T_twin_camera0: (4, 4) pose of camera 0 in the twin world frame to build.
-        rebase: mimic the pipeline's convention: a part is tracked only around its motion and its
-            canonical state is its first tracked state (the true one is the closed state).
-    """
-    gt = read_ground_truth(capture_root / "gt")
-    T_twin_world = np.asarray(T_twin_camera0, dtype=np.float64) @ invert_transform(gt.T_world_camera[0])
-    trajectory = CameraTrajectory(T_twin_world @ gt.T_world_camera, np.zeros(0, np.int64), np.ones(gt.frame_count, bool))
-    parts, masks, surfaces = [], [], []
-    for gt_part in gt.parts:
-        part = gt_part.part
-        frames, states = part.frames, part.states
-        points = np.asarray(trimesh.load(str(gt.points_path(part.name)), process=False).vertices, dtype=np.float64)
-        if rebase:
-            moving = np.flatnonzero(np.abs(np.diff(states)) > 1e-4)
-            keep = slice(max(0, moving[0] - 3), min(len(frames), moving[-1] + 8))
-            frames, states = frames[keep], states[keep]
-            points = transform_points(joint_transform(part.joint_type, part.axis_world, part.pivot_world, states[0]), points)
-            states = states - states[0]
-        pivot = None if part.pivot_world is None else transform_points(T_twin_world, part.pivot_world[None])[0]
-        parts.append(make_part(part.name, part.joint_type, T_twin_world[:3, :3] @ part.axis_world, pivot, frames, states))
-        files = [f for f in sorted((gt.root / "masks" / part.name).glob("*.png")) if frames[0] <= int(f.stem) <= frames[-1]]
-        masks.append(PartMasks(np.array([int(f.stem) for f in files], dtype=np.int64), tuple(f.read_bytes() for f in files),
-                               int(read_mask(files[0]).shape[0]), int(read_mask(files[0]).shape[1]), np.zeros(0, np.int64)))
-        surfaces.append(transform_points(T_twin_world, points))
-    return trajectory, parts, masks, surfaces
 
 
 def _ious(hands, gt_folder: Path) -> tuple[list[float], int]:

@@ -5,7 +5,6 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 import pytest
-from test_plan_scenes import PRISMATIC_CASE, REVOLUTE_CASE, write_gt_scene
 
 from funrec.geometry.joints import joint_transforms
 from funrec_robot import build_mujoco_model, default_robot_path, load_robot, robot_indices
@@ -13,6 +12,7 @@ from funrec_robot.ik import WholeBodyIK
 from funrec_robot.plan import plan_interaction
 from funrec_robot.scene import part_joint
 from funrec_robot.task_sources import task_from_ground_truth
+from tests.helpers.robot_scenes import PRISMATIC_CASE, REVOLUTE_CASE, write_gt_scene
 
 TRACK_TOL_M = 0.005
 """The handle path is tracked within 5 mm (the issue's bound): IK converges to 1 mm at the waypoints,

@@ -7,7 +7,6 @@ import time
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-from test_articulation import SyntheticScene, errors, make_scene  # tests/ is on sys.path under pytest
 
 from funrec.geometry.joints import joint_transforms
 from funrec.geometry.transforms import make_transform
@@ -19,6 +18,7 @@ from funrec.parts.part_motion import (
     _solve_joint,
     refine_part_motion,
 )
+from tests.helpers.track_scenes import SyntheticScene, errors, make_scene
 
 
 def scene_and_part(seed: int, joint_type: str, noise_m: float = 0.003, num_frames: int = 40) -> tuple[SyntheticScene, PartEstimate]:

@@ -12,7 +12,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
-from test_plan_scenes import PRISMATIC_CASE, REVOLUTE_CASE, write_gt_scene
 
 from funrec.errors import FunrecError, PlanningError
 from funrec.formats.affordances import Affordances, Interaction, PartAffordance, write_affordances
@@ -25,6 +24,7 @@ from funrec_robot.retime import limit_use
 from funrec_robot.scene import bodies_geoms, floor_geoms, part_joint
 from funrec_robot.task import resolve_target, roll_to_hold, rotation_about_grasp_axis
 from funrec_robot.task_sources import locate_scene, task_from_ground_truth, task_from_twin
+from tests.helpers.robot_scenes import PRISMATIC_CASE, REVOLUTE_CASE, write_gt_scene
 
 ACCELERATION_TOL = 0.03
 """Relative excess of finite-difference accelerations of 10 ms plan samples over the limits accepted (a

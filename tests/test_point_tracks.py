@@ -5,7 +5,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_tracking import (  # the renderer lives beside the tracking tests; pytest puts tests/ on sys.path
+
+from funrec.camera.tracking import CameraTrajectory
+from funrec.formats.capture import load_capture
+from funrec.geometry.transforms import invert_transform
+from funrec.parts.point_tracks import PointTrackConfig, PointTracks, track_points
+from tests.helpers.rendered_rooms import (
     LABEL_DOOR,
     LABEL_HAND,
     LABEL_INTERIOR,
@@ -14,11 +19,6 @@ from test_tracking import (  # the renderer lives beside the tracking tests; pyt
     render,
     write_scene,
 )
-
-from funrec.camera.tracking import CameraTrajectory
-from funrec.formats.capture import load_capture
-from funrec.geometry.transforms import invert_transform
-from funrec.parts.point_tracks import PointTrackConfig, PointTracks, track_points
 
 FRAMES = 30
 

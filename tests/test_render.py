@@ -7,12 +7,12 @@ from pathlib import Path
 import numpy as np
 import trimesh
 from PIL import Image
-from test_export_urdf import FAST_EXPORT, write_cabinet_twin
 
 from funrec.export.simulation import export_simulation
 from funrec.formats.camera_poses import write_camera_poses
 from funrec.geometry import make_transform
 from funrec.render import RenderConfig, render_twin
+from tests.helpers.twins import FAST_EXPORT, write_cabinet_twin
 
 
 def test_render_shows_the_part_moving(tmp_path: Path) -> None:

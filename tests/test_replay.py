@@ -8,7 +8,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_plan_scenes import PRISMATIC_CASE, write_gt_scene
 
 from funrec.errors import PlanningError
 from funrec.formats.affordances import Affordances, Interaction, PartAffordance, write_affordances
@@ -18,6 +17,7 @@ from funrec_robot import default_robot_path
 from funrec_robot.check_record import require_passing_record
 from funrec_robot.replay import demonstrated_interactions, replay_twin
 from funrec_robot.task_sources import task_from_ground_truth
+from tests.helpers.robot_scenes import PRISMATIC_CASE, write_gt_scene
 
 
 def _twin_from_gt(gt_dir: Path, twin: Path) -> Path:

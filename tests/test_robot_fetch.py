@@ -85,10 +85,9 @@ def test_fetch_holds_home_and_tracks_a_step(fetch, model) -> None:
 
 
 def test_fetch_ik_unloads_the_wrist_through_the_null_space(fetch, tmp_path) -> None:
-    from test_plan_scenes import PRISMATIC_CASE, write_gt_scene
-
     from funrec_robot.ik import IKConfig, WholeBodyIK
     from funrec_robot.scene import part_joint
+    from tests.helpers.robot_scenes import PRISMATIC_CASE, write_gt_scene
 
     model = build_mujoco_model(fetch, write_gt_scene(PRISMATIC_CASE, tmp_path) / "scene.xml")
     config = IKConfig(gravity_free_share=0.4)

@@ -4,7 +4,6 @@ stage is fed true inputs and when it is fed the estimates of stages 1, 2, 3 and 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -13,51 +12,20 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from funrec.camera.tracking import CameraTrajectory
 from funrec.errors import ReconstructionError
-from funrec.formats.capture import Capture, load_capture, read_mask
-from funrec.formats.ground_truth import GroundTruth, read_ground_truth
+from funrec.formats.capture import Capture
+from funrec.formats.ground_truth import GroundTruth
 from funrec.geometry.camera import backproject, project
-from funrec.geometry.joints import joint_transforms
 from funrec.geometry.transforms import invert_transform, transform_points
-from funrec.parts.part_motion import PartMotion
 from funrec.parts.point_tracks import PointTracks
 from funrec.surfaces.segmentation import PartMasks, SegmentationConfig, decode_mask, encode_mask, segment_parts
+from tests.helpers.stage_inputs import EstimatedRun, synth_sequence, true_inputs, true_mask
 
 TRACK_VISIBLE_TOL_M = 0.03
 """A simulated track is visible where the observed (noisy) depth is within 3 cm of it: ~6 sigma of
 the synthetic sensor's noise at 2 m, so occlusion by a surface > 3 cm in front hides it."""
 TARGET_MIOU = 0.85
 """Project target (FORMATS section 5 mIoU >= 85 on the bench)."""
-
-
-def synth_sequence(cache_root: Path, name: str, seed: int, part: str, frames: int, width: int, height: int) -> Path:
-    """Generate (once, cached across test runs and files) a synthetic capture with ground truth."""
-    synth = pytest.importorskip("funrec.synth")
-    spec = synth.SequenceSpec(
-        name, seed, "kitchen", (synth.PartRequest(part, "left") if part == "door" else synth.PartRequest(part, level="top"),),
-        (synth.Interaction(0, (0.9,)),), frames, width, height, hand_masks=True,
-    )
-    if not synth.is_complete(cache_root / name):
-        synth.generate_sequence(spec, cache_root / name)
-    return next(p.parent for p in (cache_root / name).rglob("intrinsics.json"))
-
-
-def true_inputs(root: Path) -> tuple[Capture, GroundTruth, CameraTrajectory, np.ndarray, np.ndarray]:
-    """Capture, ground truth, true trajectory, the part's frames and T_world_part at every frame."""
-    capture, gt = load_capture(root), read_ground_truth(root / "gt")
-    F = len(capture)
-    part = gt.parts[0].part
-    T_world_part = np.tile(np.eye(4), (F, 1, 1))
-    T_world_part[np.asarray(part.frames)] = joint_transforms(part.joint_type, part.axis_world, part.pivot_world, part.states)
-    trajectory = CameraTrajectory(gt.T_world_camera, np.arange(F), np.ones(F, dtype=bool))
-    return capture, gt, trajectory, np.asarray(part.frames), T_world_part
-
-
-def true_mask(gt: GroundTruth, capture: Capture, frame: int) -> np.ndarray:
-    path = gt.mask_path("part_0", frame)
-    shape = (capture.intrinsics.height, capture.intrinsics.width)
-    return read_mask(path) if path.is_file() else np.zeros(shape, dtype=bool)
 
 
 def simulate_tracks(capture: Capture, gt: GroundTruth, T_world_part: np.ndarray, grid_px: int, seed_every: int
@@ -130,12 +98,6 @@ def test_part_masks_stream_in_frame_order() -> None:
         np.testing.assert_array_equal(mask, expected)
     with pytest.raises(ValueError, match=r"masks must be \(F_k, H, W\)"):
         PartMasks.from_masks([0], masks[0])
-
-
-@pytest.fixture(scope="module")
-def small_sequence(request: pytest.FixtureRequest) -> Path:
-    """A 40-frame 320x240 noisy kitchen with one revolute door (~25 s to generate, then cached)."""
-    return synth_sequence(request.config.cache.mkdir("funrec_synth"), "seg_rev_320", 7, "door", 40, 320, 240)
 
 
 def test_segment_parts_validates_inputs(small_sequence: Path) -> None:
@@ -256,48 +218,6 @@ ESTIMATED_MIN_MIOU = {"smoke_rev_00": 0.65, "smoke_pri_00": 0.80}
 """Measured with the stages of this commit: door 0.73, drawer 0.87 (bench 640x480: 78-95). The
 door's estimate stops at 0.47 of its 1.5 rad (stage 2/3 lose it when it turns edge-on), so its
 hinge half only moves a few centimetres; the limits leave ~7 points for upstream changes."""
-
-
-def smoke_sequence(cache_root: Path, name: str) -> Path:
-    """Generate (once, cached across test runs) one sequence of funrec.synth's smoke suite."""
-    synth = pytest.importorskip("funrec.synth")
-    spec = next(s for s in synth.smoke_suite() if s.name == name)
-    if not synth.is_complete(cache_root / name):
-        synth.generate_sequence(spec, cache_root)
-    return next(p.parent for p in (cache_root / name).rglob("intrinsics.json"))
-
-
-@dataclass(frozen=True)
-class EstimatedRun:
-    """Stages 1-5 on a rendered capture, as funrec.pipeline runs them."""
-
-    name: str
-    capture: Capture
-    gt: GroundTruth
-    trajectory: CameraTrajectory
-    motion: PartMotion
-    masks: PartMasks
-
-
-@pytest.fixture(scope="session", params=["smoke_rev_00", "smoke_pri_00"])
-def estimated_run(request: pytest.FixtureRequest) -> EstimatedRun:
-    """~1 min per capture (plus ~45 s to generate it the first time)."""
-    from funrec.camera.tracking import track_camera
-    from funrec.parts.articulation import InteractionEvidence, estimate_articulation
-    from funrec.parts.part_motion import refine_part_motion
-    from funrec.parts.point_tracks import track_points
-
-    capture = load_capture(smoke_sequence(request.config.cache.mkdir("funrec_synth"), request.param))
-    trajectory = track_camera(capture)
-    tracks = track_points(capture, trajectory)
-    evidence = InteractionEvidence.from_hand_masks(lambda frame: capture.mask("hand", frame), np.ones(len(capture)))
-    estimate = estimate_articulation(tracks, evidence)
-    assert estimate.parts, "no part found"
-    motion = refine_part_motion(tracks, estimate.parts[0])
-    moving = np.zeros(tracks.num_tracks, dtype=bool)
-    moving[estimate.parts[0].track_indices] = True
-    masks = segment_parts(capture, trajectory, tracks, moving, motion.frames, motion.T_world_part)
-    return EstimatedRun(request.param, capture, read_ground_truth(capture.root / "gt"), trajectory, motion, masks)
 
 
 @pytest.mark.slow

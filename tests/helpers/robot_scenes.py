@@ -1,4 +1,4 @@
-"""Ground-truth scenes for the planning tests, generated without rendering (no tests here).
+"""Ground-truth scenes for the planning and robot tests, generated without rendering.
 
 ``funrec.synth.plan_sequence`` samples a bench sequence's scene and motion in under a second; this writes its
 gt/ folder the way ``generate_sequence`` does (scene.xml with textures, camera_poses.txt, gt.json) minus the
