@@ -82,6 +82,7 @@ class TcpDriver:
         tls: bool = True,
         server_cert: str | Path | None = None,
         token: str | None = None,
+        authenticate: bool = True,
     ) -> None:
         host, port = parse_address(address)
         context = None
@@ -89,8 +90,8 @@ class TcpDriver:
             from funrec_robot.tls import client_context, client_token
 
             context = client_context(None if server_cert is None else Path(server_cert))
-            token = client_token() if token is None else token
-        self.token = token
+            token = client_token() if token is None and authenticate else token
+        self.token = token if authenticate else None
         try:
             raw = socket.create_connection((host, port), timeout=timeout)
             self._sock = raw if context is None else context.wrap_socket(raw, server_hostname=None)
@@ -109,6 +110,8 @@ class TcpDriver:
         self._lock = threading.Lock()
         self._closed = False
         self._lease = False
+        self.unsolicited_errors: list[str] = []
+        """Errors the endpoint sent without a request id (a line it could not read), oldest first."""
         self._reader = threading.Thread(target=self._read, name="funrec-driver", daemon=True)
         self._reader.start()
         self.info = self.hello()
@@ -141,6 +144,7 @@ class TcpDriver:
             if kind == "reply" and message.get("id") in self._replies:
                 self._replies[message["id"]].put(message)
             elif kind == "reply" and message.get("id") is None and not message.get("ok"):
+                self.unsolicited_errors.append(str(message.get("error")))  # e.g. a line the endpoint could not parse
                 for waiting in list(self._replies.values()):
                     waiting.put(message)
             elif kind == "state":
