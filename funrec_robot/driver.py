@@ -12,6 +12,7 @@ import itertools
 import json
 import logging
 import queue
+import select
 import socket
 import ssl
 import threading
@@ -119,12 +120,14 @@ class TcpDriver:
     def _recv(self, size: int) -> bytes:
         """Poll the socket under the lock; returns b'' at end of stream (raises when closed by us)."""
         while not self._closed:
+            pending = isinstance(self._sock, ssl.SSLSocket) and self._sock.pending() > 0
+            if not pending and not select.select([self._sock], [], [], 0.05)[0]:
+                continue  # wait for bytes without holding the lock, so requests are written at once
             with self._lock:
                 try:
                     return self._sock.recv(size)
                 except (socket.timeout, ssl.SSLWantReadError):
                     pass
-            time.sleep(0.001)
         raise OSError("closed")
 
     def _read(self) -> None:

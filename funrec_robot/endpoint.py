@@ -264,11 +264,11 @@ class Endpoint:
                 "auth": auth, "authenticated": client.authenticated or not self.config.auth, "client": client.ident}
 
     def _auth(self, client: _Client, message: dict[str, Any]) -> dict[str, Any]:
-        from funrec_robot.tls import token_accepted
+        from funrec_robot.tls import authorized_hashes, token_accepted
 
         if not self.config.auth or client.authenticated:
             return {"authenticated": True}
-        if not token_accepted(message.get("token"), self.accepted_tokens):
+        if not token_accepted(message.get("token"), self.accepted_tokens | authorized_hashes()):
             client.failures += 1
             if client.failures >= MAX_AUTH_FAILURES:
                 self._close(client)

@@ -106,7 +106,8 @@ class SimRobot:
         self.indices = robot_indices(robot, self.model)
         reset_to_home(robot, self.model, self.data)
         self.robot_sha256 = sha256_file(robot.yaml_path)
-        self.trusted = trusted_keys()
+        self.trusted: dict[str, str] | None = None
+        """Trusted signing keys; None: read trusted_keys.txt at every upload (so `keys --trust` needs no restart)."""
         self.policy = CheckPolicy()
         self.lock = threading.RLock()
         self.status, self.detail = "idle", ""
@@ -130,7 +131,8 @@ class SimRobot:
         plan_id = hashlib.sha256(text.encode("utf-8", "surrogatepass")).hexdigest()
         if self.config.require_check:
             try:
-                verify_check_record(message.get("check"), plan_id, self.trusted, self.policy, self.robot_sha256)
+                trusted = trusted_keys() if self.trusted is None else self.trusted
+                verify_check_record(message.get("check"), plan_id, trusted, self.policy, self.robot_sha256)
             except TrustError as exc:
                 raise ProtocolError(f"refused: {exc}") from None
         try:
