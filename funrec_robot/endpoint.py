@@ -4,8 +4,8 @@ delivery, and a reply for every message. One asyncio loop serves every client; t
 
 No client can starve the others: lines are read in linear time and capped (64 KiB before authenticating,
 4 MiB after), each client's outgoing messages queue in its own transport and a client that lets more than
-``max_send_buffer`` bytes pile up is dropped, each connection handles one message per turn of the loop,
-and connections are capped in number and closed when idle.
+``max_send_buffer`` bytes pile up is dropped, each connection handles one message per turn of the loop and
+at most ``max_message_rate`` a second, and connections are capped in number and closed when idle.
 """
 
 from __future__ import annotations
@@ -219,7 +219,17 @@ class Endpoint:
             writer.transport.abort()
 
     async def _serve_client(self, client: _Client) -> None:
+        allowance, last = 1.0, time.monotonic()
         while not client.closed:
+            # token bucket: at most max_message_rate messages a second from one connection (a tenth before
+            # authenticating); a faster client waits, and TCP holds its further bytes back
+            rate = self.config.max_message_rate * (1.0 if client.authenticated else 0.1)
+            now = time.monotonic()
+            allowance, last = min(allowance + (now - last) * rate, max(1.0, rate / 10.0)), now
+            if allowance < 1.0:
+                await asyncio.sleep((1.0 - allowance) / rate)
+                continue
+            allowance -= 1.0
             try:
                 line = await client.reader.readuntil(b"\n")
             except asyncio.IncompleteReadError:

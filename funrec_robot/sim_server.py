@@ -77,10 +77,12 @@ class SimServerConfig:
     """Uploaded plans kept; the oldest not running is evicted."""
     max_send_buffer: int = 1 << 20
     """A client with more than this many bytes waiting to be sent to it is dropped (it does not read), bytes."""
+    max_message_rate: float = 200.0
+    """Messages a second read from one connection (a tenth of it before authenticating); more wait their turn."""
 
     def __post_init__(self) -> None:
         bounded = {"heartbeat_timeout": 60.0, "real_time_factor": 10.0, "start_tolerance": 10.0, "end_tolerance": 10.0,
-                   "duration_margin": 3600.0, "idle_timeout": 86400.0}
+                   "duration_margin": 3600.0, "idle_timeout": 86400.0, "max_message_rate": 1e6}
         for name, largest in bounded.items():
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or not 0.0 < value <= largest:
