@@ -24,6 +24,7 @@ from funrec.camera.tracking import TrackingConfig, track_camera
 from funrec.export.simulation import ExportConfig, export_simulation
 from funrec.export.twin import TwinWriter
 from funrec.formats.capture import Capture, load_capture
+from funrec.formats.staged_folder import refuse_output_over_input
 from funrec.formats.twin import ArticulatedPart, TwinArticulation, make_part
 from funrec.geometry.transforms import transform_points
 from funrec.parts.articulation import ArticulationConfig, InteractionEvidence, PartEstimate, estimate_articulation
@@ -290,7 +291,9 @@ def reconstruct(
     Raises:
         CaptureError: the capture is malformed (names file and frame).
         ReconstructionError: the capture cannot be reconstructed (says why).
+        FunrecError: ``out_dir`` is, contains or lies inside ``capture_dir``.
     """
+    refuse_output_over_input(out_dir, capture_dir)
     if config.blas_threads <= 0:
         return _reconstruct(capture_dir, out_dir, config, progress, overwrite)
     with threadpool_limits(limits=config.blas_threads, user_api="blas"):

@@ -136,7 +136,7 @@ def attest(report: CheckReport, plan_path: str | Path, config: CheckConfig) -> d
 def write_check_record(
     report: CheckReport,
     plan_path: str | Path,
-    config: CheckConfig = CheckConfig(),
+    config: CheckConfig = CheckConfig(),  # noqa: B008 (frozen, immutable default)
     path: str | Path | None = None,
     key: SigningKey | None = None,
 ) -> Path:

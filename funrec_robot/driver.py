@@ -126,7 +126,7 @@ class TcpDriver:
             with self._lock:
                 try:
                     return self._sock.recv(size)
-                except (socket.timeout, ssl.SSLWantReadError):
+                except (TimeoutError, ssl.SSLWantReadError):
                     pass
         raise OSError("closed")
 

@@ -22,7 +22,15 @@ from pathlib import Path
 from typing import Any
 
 from funrec.errors import FunrecError
-from funrec_robot.protocol import MAX_LINE_BYTES, MAX_UNAUTHENTICATED_LINE_BYTES, OPS, PROTOCOL, ProtocolError, decode_line, encode
+from funrec_robot.protocol import (
+    MAX_LINE_BYTES,
+    MAX_UNAUTHENTICATED_LINE_BYTES,
+    OPS,
+    PROTOCOL,
+    ProtocolError,
+    decode_line,
+    encode,
+)
 
 log = logging.getLogger(__name__)
 

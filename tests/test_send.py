@@ -13,8 +13,8 @@ import pytest
 from funrec.errors import FunrecError, PlanningError
 from funrec_robot import default_robot_path, load_robot
 from funrec_robot.check_record import require_passing_record, write_signed_record
-from funrec_robot.keys import TrustError
 from funrec_robot.driver import TcpDriver, send_plan
+from funrec_robot.keys import TrustError
 from funrec_robot.plan_file import Plan, Segment, read_plan, sha256_file, write_plan
 from funrec_robot.protocol import ProtocolError, parse_address, validate_plan
 from funrec_robot.ros2_driver import gripper_switches, trajectory_points

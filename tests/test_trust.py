@@ -261,8 +261,9 @@ def test_a_crlf_plan_is_sent_as_its_bytes(robot, endpoint, tmp_path) -> None:  #
     path = tmp_path / "plan.json"
     write_plan(path, _plan(robot, duration=0.5, swing=0.05))
     path.write_bytes(path.read_bytes().replace(b"\n", b"\r\n"))
-    from funrec_robot.check_record import write_signed_record
     from test_send import _attested
+
+    from funrec_robot.check_record import write_signed_record
 
     write_signed_record(_attested(path), path.with_suffix(".check.json"))
     result = send_plan(path, address, heartbeat_period=0.05)
