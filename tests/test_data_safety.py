@@ -10,7 +10,7 @@ import pytest
 
 from funrec.cli import main
 from funrec.errors import FunrecError
-from funrec.staged_folder import publish_folder, refuse_output_over_input, stage_folder
+from funrec.formats.staged_folder import publish_folder, refuse_output_over_input, stage_folder
 
 
 def test_reconstruct_refuses_an_output_equal_to_or_inside_its_capture(tmp_path: Path, capsys) -> None:
