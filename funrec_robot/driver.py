@@ -148,8 +148,6 @@ class TcpDriver:
                 self._replies[message["id"]].put(message)
             elif kind == "reply" and message.get("id") is None and not message.get("ok"):
                 self.unsolicited_errors.append(str(message.get("error")))  # e.g. a line the endpoint could not parse
-                for waiting in list(self._replies.values()):
-                    waiting.put(message)
             elif kind == "state":
                 self.latest_state = message
                 if self.on_state is not None:

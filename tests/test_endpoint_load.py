@@ -116,7 +116,6 @@ def test_fuzzed_messages_each_get_a_reply_while_a_plan_runs(tmp_path) -> None:
     try:
         rtf, heartbeat_rtt, stop_rtt = _run_plan_measuring_stop(address, path, 2.0)
         done.wait(30.0)
-        time.sleep(1.0)  # the last id-less error replies arrive (the driver hands those to any waiting request)
         assert fuzzer.request("status")["ok"]  # the fuzzed connection is still served
         fuzz_seconds = time.monotonic() - fuzz_started
     finally:

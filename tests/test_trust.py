@@ -230,14 +230,13 @@ def test_every_malformed_message_gets_a_reply(robot, endpoint, tmp_path) -> None
         driver.request("start", plan_id={"a": 1})
     with pytest.raises(ProtocolError, match="unknown op 5"):
         driver.request(5)  # type: ignore[arg-type]
-    for raw, expected in ((b"\xff\xfe\n", b"not UTF-8"), (b"[1]\n", b"expected a JSON object"), (b"{\"op\": NaN}\n", b"not JSON")):
-        box = []
-        driver._replies[None] = type("Box", (), {"put": box.append})()  # catch id-less replies
+    for raw, expected in ((b"\xff\xfe\n", "not UTF-8"), (b"[1]\n", "expected a JSON object"), (b"{\"op\": NaN}\n", "not JSON")):
+        errors = len(driver.unsolicited_errors)
         driver.send_raw(raw)
         deadline = time.monotonic() + 2.0
-        while not box and time.monotonic() < deadline:
+        while len(driver.unsolicited_errors) == errors and time.monotonic() < deadline:
             time.sleep(0.01)
-        assert box and expected.decode() in box[0]["error"], (raw, box)
+        assert expected in driver.unsolicited_errors[-1], (raw, driver.unsolicited_errors)
     assert driver.request("status")["ok"] and server.internal_errors == 0
     driver.close()
 
