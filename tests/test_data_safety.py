@@ -102,3 +102,25 @@ def test_check_fails_captures_no_reconstruction_can_use(tiny_capture: Path, tmp_
         assert main(command) == 2
         assert "intrinsics.json: implausible intrinsics: fx" in capsys.readouterr().err
     assert not (tmp_path / "twin").exists()
+
+
+def test_an_implausible_part_range_is_refused_before_planning() -> None:
+    import dataclasses
+
+    import numpy as np
+
+    from funrec.errors import PlanningError
+    from funrec_robot.task import ArticulationTask
+    from funrec_robot.task_bounds import check_task_bounds
+
+    fields = {f.name: f for f in dataclasses.fields(ArticulationTask)}
+    assert "state_range" in fields
+    task = object.__new__(ArticulationTask)  # only the fields the check reads
+    for name, value in (("part", "door"), ("joint_type", "revolute"), ("state_range", (-1e6, 1e6))):
+        object.__setattr__(task, name, value)
+    with pytest.raises(PlanningError, match=r"part 'door': revolute range \[-1e\+06, 1e\+06\] rad is implausible"):
+        check_task_bounds(task, 0.0, 1.0)
+    object.__setattr__(task, "state_range", (0.0, 1.5))
+    check_task_bounds(task, 0.0, 1.4)
+    with pytest.raises(PlanningError, match="target state nan rad is implausible"):
+        check_task_bounds(task, 0.0, float(np.nan))
