@@ -9,6 +9,7 @@ pushes ``{"type": "state", ...}`` and ``{"type": "event", ...}`` messages unaske
 from __future__ import annotations
 
 import json
+import math
 import socket
 from dataclasses import dataclass
 from typing import Any
@@ -50,6 +51,12 @@ class LimitMargins:
     re-check their limits densely after toppra, so they reach 1.0 at most)."""
     max_period: float = 0.05
     """Longest gap between two samples, s (the endpoint interpolates linearly between them)."""
+
+    def __post_init__(self) -> None:
+        for name in ("position", "velocity", "acceleration", "max_period"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0.0:
+                raise FunrecError(f"margins-{name.replace('_', '-')} {value!r}: expected a finite number >= 0")
 
 
 def validate_plan(plan: Plan, robot: RobotDescription, margins: LimitMargins = LimitMargins()) -> list[str]:

@@ -268,3 +268,10 @@ def test_a_crlf_plan_is_sent_as_its_bytes(robot, endpoint, tmp_path) -> None:  #
     result = send_plan(path, address, heartbeat_period=0.05)
     assert result.event == "done", result.detail
     assert np.isfinite(result.wall_time) and DT > 0
+
+
+def test_limit_margins_must_be_finite() -> None:
+    from funrec_robot.protocol import LimitMargins
+
+    with pytest.raises(FunrecError, match=r"margins-velocity nan: expected a finite number >= 0"):
+        LimitMargins(velocity=float("nan"))
