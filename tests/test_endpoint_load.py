@@ -132,6 +132,63 @@ def test_fuzzed_messages_each_get_a_reply_while_a_plan_runs(tmp_path) -> None:
     assert _rss_mb(os.getpid()) - rss_before < 150.0
 
 
+_SENDER = """
+import json, sys, time
+from funrec_robot.driver import TcpDriver
+address, plan = sys.argv[1], sys.argv[2]
+driver = TcpDriver(address)
+text = open(plan).read()
+driver.start(driver.upload(text, json.loads(open(plan.replace('.json', '.check.json')).read())))
+print('started', flush=True)
+while True:
+    driver.heartbeat()
+    time.sleep(0.05)
+"""
+
+
+@pytest.mark.parametrize("how", ["killed", "frozen"])
+def test_a_vanished_sender_stops_the_robot(tmp_path, how) -> None:
+    """The sender's process is killed (its connection closes) or frozen (SIGSTOP: the connection stays open
+    and silent): the robot stops and holds, at once or after the 1 s heartbeat timeout."""
+    import signal
+
+    from test_send import _checked, _plan
+
+    from funrec_robot import default_robot_path, load_robot
+    from funrec_robot.driver import TcpDriver
+    from funrec_robot.sim_server import SimServerConfig, make_sim_server
+
+    robot = load_robot(default_robot_path())
+    server = make_sim_server(robot, None, SimServerConfig(port=0))
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    address = f"127.0.0.1:{server.server_address[1]}"
+    path = _checked(tmp_path / "plan.json", _plan(robot, duration=8.0, swing=0.2))
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    sender = subprocess.Popen([sys.executable, "-c", _SENDER, address, str(path)], stdout=subprocess.PIPE, text=True, env=env)
+    observer = TcpDriver(address)
+    try:
+        assert sender.stdout.readline().strip() == "started"
+        time.sleep(0.5)
+        vanished = time.monotonic()
+        sender.send_signal(signal.SIGKILL if how == "killed" else signal.SIGSTOP)
+        event = observer.wait_event(3.0)
+        latency = time.monotonic() - vanished
+    finally:
+        sender.kill()
+        sender.wait(5.0)
+        observer.close()
+        server.shutdown()
+        thread.join(5.0)
+        server.server_close()
+    print(json.dumps({"vanished": how, "stop_latency_s": latency}))
+    assert event is not None and event["event"] == "fault", event
+    if how == "killed":
+        assert "disconnected" in event["detail"] and latency < 0.5
+    else:
+        assert "no heartbeat from the lease holder" in event["detail"] and latency < 1.0 + 0.05 + 0.3
+
+
 def _flood(address: str, seconds: float, out: Path) -> None:
     """Flood an endpoint for ``seconds`` from several threads; write what was sent to ``out`` as JSON."""
     from funrec_robot.tls import client_context, client_token
