@@ -124,3 +124,22 @@ def test_an_implausible_part_range_is_refused_before_planning() -> None:
     check_task_bounds(task, 0.0, 1.4)
     with pytest.raises(PlanningError, match="target state nan rad is implausible"):
         check_task_bounds(task, 0.0, float(np.nan))
+
+
+def test_ctrl_c_acts_within_a_long_native_call() -> None:
+    """coacd's decomposition runs in a worker thread: SIGINT interrupts the export at once, not when it ends."""
+    import signal
+    import threading
+    import time
+
+    from funrec.export.collision import interruptible
+
+    timer = threading.Timer(0.2, signal.raise_signal, args=(signal.SIGINT,))
+    started = time.monotonic()
+    timer.start()
+    with pytest.raises(KeyboardInterrupt):
+        interruptible(time.sleep, 10.0)  # a call that releases the GIL, as coacd's does
+    assert time.monotonic() - started < 1.0
+    assert interruptible(sum, [1, 2]) == 3
+    with pytest.raises(ZeroDivisionError):
+        interruptible(lambda: 1 / 0)
