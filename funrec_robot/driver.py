@@ -84,13 +84,16 @@ class TcpDriver:
         server_cert: str | Path | None = None,
         token: str | None = None,
         authenticate: bool = True,
+        client_cert: str | Path | None = None,
+        client_key: str | Path | None = None,
     ) -> None:
         host, port = parse_address(address)
         context = None
         if tls:
             from funrec_robot.tls import client_context, client_token
 
-            context = client_context(None if server_cert is None else Path(server_cert))
+            context = client_context(None if server_cert is None else Path(server_cert),
+                                     None if client_cert is None else Path(client_cert), None if client_key is None else Path(client_key))
             token = client_token() if token is None and authenticate else token
         self.token = token if authenticate else None
         try:

@@ -275,3 +275,74 @@ def test_limit_margins_must_be_finite() -> None:
 
     with pytest.raises(FunrecError, match=r"margins-velocity nan: expected a finite number >= 0"):
         LimitMargins(velocity=float("nan"))
+
+
+def test_the_ros2_adapter_verifies_records_like_an_endpoint(robot, tmp_path) -> None:  # noqa: F811
+    """Its upload without ROS: the verification runs before any action is sent."""
+    from funrec_robot.ros2_driver import Ros2Config, Ros2Driver
+
+    driver = object.__new__(Ros2Driver)
+    driver.config, driver._plans = Ros2Config(), {}
+    path = tmp_path / "plan.json"
+    write_plan(path, _plan(robot))
+    with pytest.raises(ProtocolError, match="refused: check record: not a signed check record"):
+        driver.upload(path.read_text(), {"format": "funrec-check/1", "plan_sha256": sha256_file(path), "passed": True})
+    _checked(path, _plan(robot), max_handle_force=1000.0)
+    with pytest.raises(ProtocolError, match="refused: .*max_handle_force = 1000.0 is looser"):
+        driver.upload(path.read_text(), _record(path))
+    _checked(path, _plan(robot))
+    assert driver.upload(path.read_text(), _record(path)) == sha256_file(path)
+
+
+def _client_certificate(tmp_path):
+    """A CA and a client certificate it signed (PEM files)."""
+    import datetime
+
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
+    from cryptography.x509.oid import NameOID
+
+    def name(text):
+        return x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, text)])
+
+    now = datetime.datetime.now(datetime.timezone.utc)
+    ca_key, client_key = ec.generate_private_key(ec.SECP256R1()), ec.generate_private_key(ec.SECP256R1())
+
+    def certificate(subject, key, issuer, signer, ca):
+        return (x509.CertificateBuilder().subject_name(name(subject)).issuer_name(name(issuer)).public_key(key.public_key())
+                .serial_number(x509.random_serial_number()).not_valid_before(now - datetime.timedelta(minutes=1))
+                .not_valid_after(now + datetime.timedelta(days=1))
+                .add_extension(x509.BasicConstraints(ca=ca, path_length=None), critical=True).sign(signer, hashes.SHA256()))
+
+    ca = certificate("test ca", ca_key, "test ca", ca_key, True)
+    client = certificate("operator", client_key, "test ca", ca_key, False)
+    pem = serialization.Encoding.PEM
+    (tmp_path / "ca.pem").write_bytes(ca.public_bytes(pem))
+    (tmp_path / "client.pem").write_bytes(client.public_bytes(pem))
+    (tmp_path / "client_key.pem").write_bytes(client_key.private_bytes(pem, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()))
+    return tmp_path / "ca.pem", tmp_path / "client.pem", tmp_path / "client_key.pem"
+
+
+def test_a_client_certificate_signed_by_the_endpoints_ca_authenticates(robot, tmp_path) -> None:  # noqa: F811
+    import threading
+
+    from funrec_robot.sim_server import make_sim_server
+
+    ca, cert, key = _client_certificate(tmp_path)
+    server = make_sim_server(robot, None, SimServerConfig(port=0, client_ca=str(ca)))
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    address = f"127.0.0.1:{server.server_address[1]}"
+    try:
+        with_cert = TcpDriver(address, authenticate=False, client_cert=cert, client_key=key)
+        assert with_cert.info["authenticated"] is True and "client_certificate" in with_cert.info["auth"]
+        with_cert.acquire()
+        without = TcpDriver(address, authenticate=False)
+        with pytest.raises(ProtocolError, match="acquire: refused: not authenticated"):
+            without.acquire()
+        with_cert.close(), without.close()
+    finally:
+        server.shutdown()
+        thread.join(5.0)
+        server.server_close()
