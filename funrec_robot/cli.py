@@ -200,6 +200,9 @@ def _cmd_serve_sim(args: argparse.Namespace) -> int:
     from funrec_robot.robot import load_robot
     from funrec_robot.sim_server import SimServerConfig, make_sim_server
 
+    from funrec_robot.endpoint import return_large_buffers_to_the_os
+
+    return_large_buffers_to_the_os()
     server = make_sim_server(load_robot(resolve_robot(args.robot)), args.scene, config_from_args(SimServerConfig, args))
     host, port = server.server_address[:2]
     security = f"TLS, certificate {server.certificate}" if server.ssl is not None else "NO TLS, NO AUTHENTICATION"

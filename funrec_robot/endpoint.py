@@ -58,6 +58,26 @@ class _Client:
     closed: bool = False
 
 
+def return_large_buffers_to_the_os() -> None:
+    """glibc only, process-wide: serve every allocation over 128 KiB from its own mapping, freed at once.
+
+    Lines of up to 4 MiB come and go; with glibc's default (a threshold that rises after such frees) they
+    end up in heap arenas that never shrink, and a long flood ratchets the resident memory up (measured on
+    serve-sim: 177 -> 501 MB in a 30 s flood; with this alone 174 -> 447 MB; with this and closed streams'
+    buffers freed at once (``_handle``) 175 -> 255 MB, flat). A no-op elsewhere.
+    """
+    import ctypes
+    import ctypes.util
+
+    name = ctypes.util.find_library("c")
+    try:
+        libc = ctypes.CDLL(name) if name else None
+        if libc is not None and hasattr(libc, "mallopt"):
+            libc.mallopt(-3, 128 * 1024)  # M_MMAP_THRESHOLD (fixing it also stops its dynamic rise)
+    except OSError:
+        pass
+
+
 def _is_loopback(host: str) -> bool:
     if host == "localhost":
         return True
@@ -225,6 +245,9 @@ class Endpoint:
             if self.holder == client.ident:
                 self._lapse(f"the holder, client {client.ident}, disconnected")
             writer.transport.abort()
+            # A closed stream's exception keeps its frames, and so its buffer (up to 8 MiB), alive in reference
+            # cycles until the cyclic collector runs, which large buffers do not trigger: free the bytes now.
+            reader._buffer.clear()  # noqa: SLF001
 
     async def _serve_client(self, client: _Client) -> None:
         allowance, last = 1.0, time.monotonic()
@@ -354,4 +377,4 @@ class Endpoint:
         return {"rate_hz": rate}
 
 
-__all__ = ["Endpoint"]
+__all__ = ["Endpoint", "return_large_buffers_to_the_os"]
