@@ -122,8 +122,10 @@ class SimRobot:
         self.notify: Callable[[dict[str, Any]], None] = lambda message: None
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._last_state: dict[str, Any] = {}
         low, high = sorted((robot.gripper.open, robot.gripper.closed))
         self._gripper_range = (low - 1e-6, high + 1e-6)
+        self.state()
 
     def upload(self, message: dict[str, Any]) -> dict[str, Any]:
         """Verify, validate and store a plan (see the module docstring)."""
@@ -188,8 +190,7 @@ class SimRobot:
         return {"status": "running"}
 
     def heartbeat(self) -> None:
-        with self.lock:
-            self.last_heartbeat = time.monotonic()
+        self.last_heartbeat = time.monotonic()  # one attribute store: no lock, the network loop never waits
 
     def stop(self, detail: str = "stop requested", status: str = "stopped") -> dict[str, Any]:
         with self.lock:
@@ -225,11 +226,15 @@ class SimRobot:
         self.notify({"type": "event", "event": status, "detail": detail, "plan_time": round(self.plan_time, 4)})
 
     def state(self) -> dict[str, Any]:
-        with self.lock:
+        """The measured state; never waits for the simulation thread (the network loop calls it): while that
+        thread holds the lock, the state it last left is returned."""
+        if not self.lock.acquire(blocking=False):
+            return dict(self._last_state, status=self.status)
+        try:
             q = self.data.qpos[self.indices.qpos]
             qd = self.data.qvel[self.indices.dof]
             gripper = self.data.ctrl[self.indices.gripper_actuators]
-            return {
+            self._last_state = {
                 "type": "state",
                 "status": self.status,
                 "sim_time": _json_number(self.data.time),
@@ -239,6 +244,9 @@ class SimRobot:
                 "qd": [_json_number(v) for v in qd],
                 "gripper_command": _json_number(gripper[0]) if gripper.size else None,
             }
+            return self._last_state
+        finally:
+            self.lock.release()
 
     def _step_once(self, plan: Plan, grip_offset: float | None) -> tuple[float | None, str]:
         """Command the plan at ``plan_time`` and step once; returns the release offset and a fault ('' if none)."""
@@ -276,14 +284,21 @@ class SimRobot:
                 if wall > deadline:
                     self._halt("fault", f"execution overran the plan's {plan.duration:.2f} s by more than {self.config.duration_margin} s")
                     return
-                while self.plan_time < wall and self.plan_time <= plan.duration:
+            while self.plan_time < wall and self.plan_time <= plan.duration:
+                with self.lock:  # one step at a time: stop and state never wait for a whole catch-up
+                    if self.status != "running":
+                        return
                     grip_offset, fault = self._step_once(plan, grip_offset)
                     if fault:
                         self._halt("fault", fault + ": stopped and holding")
                         return
+            with self.lock:
+                if self.status != "running":
+                    return
                 if self.plan_time > plan.duration:
                     self._finish(plan)
                     return
+                self.state()  # refresh the state the network loop reads while this thread steps
             time.sleep(0.002)
 
     def _finish(self, plan: Plan) -> None:
