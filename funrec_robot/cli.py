@@ -221,8 +221,8 @@ def _cmd_keys(args: argparse.Namespace) -> int:
     from funrec_robot.tls import CERT_FILE, authorize_token, client_token
 
     if args.trust:
-        print(f"trusted {fingerprint(args.trust.strip().lower()) if len(args.trust.strip()) == 64 else args.trust}: "
-              f"{trust_key(args.trust, args.label)}")
+        path = trust_key(args.trust, args.label)
+        print(f"trusted {fingerprint(args.trust.split()[0].lower())}: {path}")
         return 0
     if args.authorize_token:
         print(f"authorized a token: {authorize_token(args.authorize_token, args.label)}")

@@ -109,7 +109,7 @@ class Endpoint:
             self.ssl = server_context(cert, key, Path(config.client_ca) if config.client_ca else None)
         elif not _is_loopback(config.host) and not config.unauthenticated_beyond_loopback:
             raise FunrecError(
-                f"serve-sim: refusing to listen on {config.host} without authentication: anyone who reaches it could move "
+                f"refusing to listen on {config.host} without authentication: anyone who reaches it could move "
                 "the robot; keep auth on, or pass --unauthenticated-beyond-loopback to accept that risk"
             )
         family = socket.AF_INET6 if ":" in config.host else socket.AF_INET
@@ -119,7 +119,7 @@ class Endpoint:
             self._socket.bind((config.host, config.port))
         except OSError as exc:
             self._socket.close()
-            raise FunrecError(f"serve-sim: cannot listen on {config.host}:{config.port}: {exc}") from None
+            raise FunrecError(f"cannot listen on {config.host}:{config.port}: {exc}") from None
         self._socket.listen(128)
         self.server_address = self._socket.getsockname()
         self.clients: dict[int, _Client] = {}

@@ -130,9 +130,14 @@ def trusted_keys(directory: Path | None = None) -> dict[str, str]:
 
 
 def trust_key(public_hex: str, label: str = "", directory: Path | None = None) -> Path:
-    """Add a public key to the trusted keys (no-op if already there)."""
+    """Add a public key (64 hex digits, or a ``funrec-robot keys --export`` line) to the trusted keys (no-op
+    if already there).
+
+    Raises:
+        TrustError: not an Ed25519 public key in hex.
+    """
     directory = config_dir() if directory is None else directory
-    public_hex = _check_public_hex(public_hex)
+    public_hex = _check_public_hex((public_hex.split() or [""])[0])  # also a whole `keys --export` line
     path = directory / TRUSTED_KEYS_FILE
     if public_hex not in trusted_keys(directory):
         directory.mkdir(parents=True, exist_ok=True, mode=0o700)

@@ -86,12 +86,12 @@ class SimServerConfig:
         for name, largest in bounded.items():
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or not 0.0 < value <= largest:
-                raise FunrecError(f"serve-sim: {name.replace('_', '-')} {value!r}: expected a finite number in (0, {largest:g}]")
+                raise FunrecError(f"{name.replace('_', '-')} {value!r}: expected a finite number in (0, {largest:g}]")
         for name in ("max_connections", "max_plans", "max_send_buffer"):
             if int(getattr(self, name)) < 1:
-                raise FunrecError(f"serve-sim: {name.replace('_', '-')} {getattr(self, name)!r}: expected at least 1")
+                raise FunrecError(f"{name.replace('_', '-')} {getattr(self, name)!r}: expected at least 1")
         if not 0 <= int(self.port) <= 65535:
-            raise FunrecError(f"serve-sim: port {self.port}: expected 0-65535")
+            raise FunrecError(f"port {self.port}: expected 0-65535")
 
 
 class SimRobot:
