@@ -196,11 +196,10 @@ def _cmd_send(args: argparse.Namespace) -> int:
 def _cmd_serve_sim(args: argparse.Namespace) -> int:
     from funrec.config import config_from_args
     from funrec_robot.catalog import resolve_robot
+    from funrec_robot.endpoint import return_large_buffers_to_the_os
     from funrec_robot.protocol import PROTOCOL
     from funrec_robot.robot import load_robot
     from funrec_robot.sim_server import SimServerConfig, make_sim_server
-
-    from funrec_robot.endpoint import return_large_buffers_to_the_os
 
     return_large_buffers_to_the_os()
     server = make_sim_server(load_robot(resolve_robot(args.robot)), args.scene, config_from_args(SimServerConfig, args))
