@@ -146,8 +146,8 @@ def test_lease_holder_alone_commands_and_keeps_the_plan_alive(robot, endpoint, t
         third.request("status")
         event = sender.wait_event(0.05)
     assert event is not None and event["event"] == "fault" and "no heartbeat from the lease holder" in event["detail"]
-    assert time.monotonic() - started < 1.0  # the 0.3 s watchdog, not the 3 s plan
-    time.sleep(0.4)  # the silent holder's lease lapses: another client may take it, and E-Stop needs none
+    assert time.monotonic() - started < 1.5  # the 0.5 s watchdog, not the 3 s plan
+    time.sleep(0.6)  # the silent holder's lease lapses: another client may take it, and E-Stop needs none
     while third.wait_event(0.0) is not None:  # events go to every client: forget the first plan's
         pass
     third.acquire()
