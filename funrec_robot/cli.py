@@ -177,13 +177,10 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
 def _cmd_send(args: argparse.Namespace) -> int:
     from funrec_robot.check_record import require_passing_record
-    from funrec_robot.driver import TcpDriver, send_plan
+    from funrec_robot.driver import send_plan
 
     require_passing_record(args.plan)  # refuse before connecting (send_plan verifies again)
-    driver = None
-    if not args.to.startswith("ros2://"):
-        token = args.token_file.read_text().strip() if args.token_file is not None else None
-        driver = TcpDriver(args.to, tls=not args.no_tls, server_cert=args.server_cert, token=token)
+    driver = None if args.to.startswith("ros2://") else _connect(args)
     try:
         result = send_plan(args.plan, args.to, timeout=args.timeout, driver=driver)
     finally:
@@ -212,6 +209,24 @@ def _cmd_serve_sim(args: argparse.Namespace) -> int:
         pass
     finally:
         server.server_close()
+    return 0
+
+
+def _connect(args: argparse.Namespace) -> Any:
+    """A funrec-robot/2 client from --to, --server-cert, --token-file and --no-tls."""
+    from funrec_robot.driver import TcpDriver
+
+    token = args.token_file.read_text().strip() if args.token_file is not None else None
+    return TcpDriver(args.to, tls=not args.no_tls, server_cert=args.server_cert, token=token)
+
+
+def _cmd_estop(args: argparse.Namespace) -> int:
+    driver = _connect(args)
+    try:
+        status = driver.request("estop")["status"]
+    finally:
+        driver.close()
+    print(f"E-Stop sent: the robot is {status}")
     return 0
 
 
@@ -339,10 +354,14 @@ def _add_send(sub: Any) -> None:
     p.add_argument("plan", type=Path, help="plan.json (its .check.json beside it)")
     p.add_argument("--to", required=True, metavar="ADDRESS", help="endpoint: host:port, tcp://host:port or ros2://NAMESPACE")
     p.add_argument("--timeout", type=float, help="stop the robot after this many seconds (default: duration + 30 s)")
+    _add_connection_arguments(p)
+    p.set_defaults(handler=_cmd_send)
+
+
+def _add_connection_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--server-cert", type=Path, help="the endpoint's certificate to pin (default: this machine's endpoint's)")
     p.add_argument("--token-file", type=Path, help="file holding the token to present (default: this user's)")
     p.add_argument("--no-tls", action="store_true", help="plain TCP to an endpoint started with --no-auth (loopback experiments)")
-    p.set_defaults(handler=_cmd_send)
 
 
 def _add_serve_sim(sub: Any) -> None:
@@ -363,6 +382,17 @@ def _add_serve_sim(sub: Any) -> None:
     p.set_defaults(handler=_cmd_serve_sim)
 
 
+def _add_estop(sub: Any) -> None:
+    p = sub.add_parser(
+        "estop",
+        help="E-Stop a funrec-robot/2 endpoint (any authenticated client, lease or not)",
+        description="Connect, authenticate and send an E-Stop: whatever runs stops and holds, status fault.",
+    )
+    p.add_argument("--to", required=True, metavar="ADDRESS", help="endpoint: host:port or tcp://host:port")
+    _add_connection_arguments(p)
+    p.set_defaults(handler=_cmd_estop)
+
+
 def _add_keys(sub: Any) -> None:
     p = sub.add_parser(
         "keys",
@@ -380,7 +410,7 @@ def _add_keys(sub: Any) -> None:
 
 
 _COMMANDS: tuple[Callable[[Any], None], ...] = (
-    _add_robots, _add_describe, _add_plan, _add_check, _add_bench, _add_replay, _add_send, _add_serve_sim, _add_keys,
+    _add_robots, _add_describe, _add_plan, _add_check, _add_bench, _add_replay, _add_send, _add_serve_sim, _add_estop, _add_keys,
 )
 
 

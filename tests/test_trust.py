@@ -10,6 +10,7 @@ import os
 import socket
 import ssl
 import stat
+import threading
 import time
 
 import numpy as np
@@ -363,3 +364,28 @@ def test_keys_command_exports_and_trusts(tmp_path, monkeypatch, capsys) -> None:
     assert "expected 64 hex digits" in capsys.readouterr().err
     assert main(["keys"]) == 0
     assert "lab pc" in capsys.readouterr().out
+
+
+def test_estop_command_stops_a_plan_it_does_not_hold(robot, endpoint, tmp_path, capsys) -> None:  # noqa: F811
+    from funrec_robot.cli import main
+
+    _, address = endpoint
+    path = _checked(tmp_path / "plan.json", _plan(robot, duration=3.0, swing=0.1))
+    sender = TcpDriver(address)
+    sender.start(sender.upload(path.read_text(), _record(path)))
+    beating = threading.Event()
+
+    def beat() -> None:  # the holder stays alive while the E-Stop command connects
+        while not beating.wait(0.05):
+            try:
+                sender.heartbeat()
+            except ProtocolError:
+                return
+
+    threading.Thread(target=beat, daemon=True).start()
+    assert main(["estop", "--to", address]) == 0
+    beating.set()
+    assert "E-Stop sent: the robot is fault" in capsys.readouterr().out
+    event = sender.wait_event(1.0)
+    assert event is not None and event["event"] == "fault" and "E-Stop by client" in event["detail"]
+    sender.close()
