@@ -113,7 +113,6 @@ class TcpDriver:
         self._events: queue.Queue = queue.Queue()
         self._lock = threading.Lock()
         self._closed = False
-        self._lease = False
         self.unsolicited_errors: list[str] = []
         """Errors the endpoint sent without a request id (a line it could not read), oldest first."""
         self._reader = threading.Thread(target=self._read, name="funrec-driver", daemon=True)
@@ -202,11 +201,9 @@ class TcpDriver:
     def acquire(self) -> None:
         """Take the lease (exclusive control)."""
         self.request("acquire")
-        self._lease = True
 
     def upload(self, plan_text: str, check_record: dict[str, Any]) -> str:
-        if not self._lease:
-            self.acquire()
+        self.acquire()  # (again: a lease lapses after heartbeat_timeout of silence)
         return str(self.request("upload", plan_text=plan_text, check=check_record)["plan_id"])
 
     def start(self, plan_id: str) -> None:

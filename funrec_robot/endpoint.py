@@ -56,6 +56,8 @@ class _Client:
     last_seen: float = field(default_factory=time.monotonic)
     streaming: asyncio.Task | None = None
     closed: bool = False
+    busy: bool = False
+    """A request of this client is being carried out (e.g. a large upload being verified)."""
 
 
 def return_large_buffers_to_the_os() -> None:
@@ -205,7 +207,8 @@ class Endpoint:
             await asyncio.sleep(0.05)
             now = time.monotonic()
             holder = self.clients.get(self.holder) if self.holder is not None else None
-            if holder is not None and now - self.sim.last_heartbeat > self.config.heartbeat_timeout and self.sim.status != "running":
+            if (holder is not None and not holder.busy and now - self.sim.last_heartbeat > self.config.heartbeat_timeout
+                    and self.sim.status != "running"):
                 self._lapse(f"no heartbeat from the lease holder for {self.config.heartbeat_timeout} s")
             for client in list(self.clients.values()):
                 limit = self.config.idle_timeout if client.authenticated else UNAUTHENTICATED_IDLE_S
@@ -285,6 +288,7 @@ class Endpoint:
 
     async def _answer(self, client: _Client, line: bytes) -> None:
         ident = None
+        client.busy = True
         try:
             message = decode_line(line)
             ident = message.get("id")
@@ -295,6 +299,10 @@ class Endpoint:
             self.internal_errors += 1
             log.exception("client %d: internal error", client.ident)
             self._reply(client, ident, error=f"internal error ({type(exc).__name__}); the request was not carried out")
+        finally:
+            client.busy = False
+            if self.holder == client.ident:
+                self.sim.heartbeat()  # a long request (an upload) ends: the holder's silence counts from here
 
     def _hello(self, client: _Client) -> dict[str, Any]:
         robot = self.sim.robot

@@ -372,7 +372,7 @@ def test_estop_command_stops_a_plan_it_does_not_hold(robot, endpoint, tmp_path, 
     _, address = endpoint
     path = _checked(tmp_path / "plan.json", _plan(robot, duration=3.0, swing=0.1))
     sender = TcpDriver(address)
-    sender.start(sender.upload(path.read_text(), _record(path)))
+    plan_id = sender.upload(path.read_text(), _record(path))
     beating = threading.Event()
 
     def beat() -> None:  # the holder stays alive while the E-Stop command connects
@@ -383,6 +383,7 @@ def test_estop_command_stops_a_plan_it_does_not_hold(robot, endpoint, tmp_path, 
                 return
 
     threading.Thread(target=beat, daemon=True).start()
+    sender.start(plan_id)
     assert main(["estop", "--to", address]) == 0
     beating.set()
     assert "E-Stop sent: the robot is fault" in capsys.readouterr().out
