@@ -11,6 +11,7 @@ execution overruns the plan's duration. One plan runs at a time.
 
 from __future__ import annotations
 
+import bisect
 import hashlib
 import json
 import logging
@@ -123,6 +124,8 @@ class SimRobot:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._last_state: dict[str, Any] = {}
+        self._times: list[float] = []
+        self._release_start = math.inf
         low, high = sorted((robot.gripper.open, robot.gripper.closed))
         self._gripper_range = (low - 1e-6, high + 1e-6)
         self.state()
@@ -249,19 +252,23 @@ class SimRobot:
             self.lock.release()
 
     def _step_once(self, plan: Plan, grip_offset: float | None) -> tuple[float | None, str]:
-        """Command the plan at ``plan_time`` and step once; returns the release offset and a fault ('' if none)."""
+        """Command the plan at ``plan_time`` (linear interpolation between samples) and step once; returns the
+        release offset and a fault ('' if none)."""
         model, data, t = self.model, self.data, self.plan_time
-        data.ctrl[self.indices.actuators] = [np.interp(t, plan.t, plan.q[:, j]) for j in range(plan.q.shape[1])]
-        if t >= plan.release_start and grip_offset is None:
+        k = min(max(bisect.bisect_right(self._times, t) - 1, 0), len(self._times) - 2)
+        w = min(max((t - self._times[k]) / (self._times[k + 1] - self._times[k]), 0.0), 1.0)
+        data.ctrl[self.indices.actuators] = plan.q[k] + w * (plan.q[k + 1] - plan.q[k])
+        if grip_offset is None and t >= self._release_start:
             grip_offset = release_offset(plan, gripper_position(self.indices, data))
-        command = float(np.interp(t, plan.t, plan.gripper_command)) + (grip_offset or 0.0)
+        g = plan.gripper_command
+        command = float(g[k] + w * (g[k + 1] - g[k])) + (grip_offset or 0.0)
         if self.indices.gripper_actuators.size:
             if not self._gripper_range[0] <= command <= self._gripper_range[1]:
                 return grip_offset, f"gripper command {command:.4f} at {t:.2f} s outside [{self._gripper_range[0]:.4f}, {self._gripper_range[1]:.4f}]"
             data.ctrl[self.indices.gripper_actuators] = command
         before = data.time
         mujoco.mj_step(model, data)
-        if not (np.all(np.isfinite(data.qpos)) and np.all(np.isfinite(data.qvel))) or data.time <= before:
+        if not (math.isfinite(float(data.qpos.sum())) and math.isfinite(float(data.qvel.sum()))) or data.time <= before:
             return grip_offset, f"simulation became unstable or reset at {t:.2f} s"
         self.plan_time += model.opt.timestep
         return grip_offset, ""
@@ -270,6 +277,7 @@ class SimRobot:
         """Step the model so that simulated time keeps pace with the wall clock (times the real-time factor)."""
         plan = self.plan
         assert plan is not None
+        self._times, self._release_start = plan.t.tolist(), plan.release_start
         grip_offset: float | None = None
         started = time.monotonic()
         deadline = plan.duration + self.config.duration_margin
