@@ -141,9 +141,10 @@ class TcpDriver:
                 message = None
                 log.debug("connection ended: %s", exc)
             if message is None:
-                self._events.put({"type": "event", "event": "fault", "detail": "connection to the endpoint closed"})
+                why = "connection to the endpoint closed" + (f" ({self.unsolicited_errors[-1]})" if self.unsolicited_errors else "")
+                self._events.put({"type": "event", "event": "fault", "detail": why})
                 for waiting in list(self._replies.values()):
-                    waiting.put({"ok": False, "error": "connection to the endpoint closed"})
+                    waiting.put({"ok": False, "error": why})
                 return
             kind = message.get("type")
             if kind == "reply" and message.get("id") in self._replies:

@@ -36,6 +36,8 @@ log = logging.getLogger(__name__)
 
 UNAUTHENTICATED_IDLE_S = 10.0
 """A connection that has not authenticated is closed after this long without a message, s."""
+SEND_SOCKET_BUFFER = 256 << 10
+"""Kernel send buffer of each client socket, bytes (the kernel's autotuning would let megabytes queue)."""
 MAX_AUTH_FAILURES = 3
 """Wrong tokens before a connection is closed."""
 OPEN_OPS = ("hello", "auth")
@@ -232,6 +234,9 @@ class Endpoint:
                                  "error": f"too many connections (at most {self.config.max_connections}); try later"}))
             writer.transport.close()
             return
+        sock = writer.get_extra_info("socket")
+        if sock is not None:  # bounded kernel buffering per client: one that does not read is found (and dropped) soon
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SEND_SOCKET_BUFFER)
         certificate = writer.get_extra_info("peercert")
         if certificate:
             subject = dict(item[0] for item in certificate.get("subject", ()))

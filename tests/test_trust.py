@@ -390,3 +390,59 @@ def test_estop_command_stops_a_plan_it_does_not_hold(robot, endpoint, tmp_path, 
     event = sender.wait_event(1.0)
     assert event is not None and event["event"] == "fault" and "E-Stop by client" in event["detail"]
     sender.close()
+
+
+def _serving(robot, **config):  # noqa: F811
+    """A started endpoint with these settings; stop it with ``_stop_serving``."""
+    from funrec_robot.sim_server import make_sim_server
+
+    server = make_sim_server(robot, None, SimServerConfig(port=0, **config))
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    return server, thread, f"127.0.0.1:{server.server_address[1]}"
+
+
+def _stop_serving(server, thread) -> None:
+    server.shutdown()
+    thread.join(5.0)
+    server.server_close()
+
+
+def test_connection_cap_idle_timeout_slow_clients_and_plan_eviction(robot, tmp_path) -> None:  # noqa: F811
+    server, thread, address = _serving(robot, max_connections=3, idle_timeout=1.0, max_plans=2, max_send_buffer=64 << 10)
+    try:
+        first, second = TcpDriver(address), TcpDriver(address)
+        # a client that subscribes at 200 Hz and never reads: dropped once 64 KiB wait for it
+        host, port = address.split(":")
+        from funrec_robot.tls import client_context, client_token
+
+        plain = socket.socket()
+        plain.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        plain.connect((host, int(port)))
+        raw = client_context().wrap_socket(plain)
+        raw.sendall(json.dumps({"id": 1, "op": "auth", "token": client_token()}).encode() + b"\n")
+        raw.sendall(b'{"id": 2, "op": "subscribe", "rate_hz": 200}\n' + b'{"id": 3, "op": "status"}\n' * 2000)
+        with pytest.raises(ProtocolError, match=r"too many connections \(at most 3\)"):
+            TcpDriver(address)  # the cap, while the non-reader is connected
+        deadline = time.monotonic() + 10.0
+        while server.dropped_slow == 0 and time.monotonic() < deadline:
+            first.request("status"), second.request("status")
+            time.sleep(0.05)
+        assert server.dropped_slow == 1
+        raw.close()
+        # plans beyond max_plans evict the oldest
+        ids = []
+        for n in range(3):
+            path = _checked(tmp_path / f"plan{n}.json", _plan(robot, duration=0.5, swing=0.01 * (n + 1)))
+            ids.append(first.upload(path.read_text(), _record(path)))
+        with pytest.raises(ProtocolError, match="no uploaded plan .*; upload it first"):
+            first.start(ids[0])
+        assert set(server.sim.plans) == set(ids[1:])
+        # idle: closed after 1 s without a message (the state stream does not count)
+        event = second.wait_event(3.0)
+        while event is not None and event.get("event") != "fault":
+            event = second.wait_event(3.0)
+        assert event is not None and "connection to the endpoint closed" in event["detail"]
+        first.close(), second.close()
+    finally:
+        _stop_serving(server, thread)
