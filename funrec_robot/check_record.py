@@ -193,10 +193,10 @@ def verify_check_record(
         value = settings.get(name)
         if not isinstance(value, (int, float)) or isinstance(value, bool) or not value <= largest:
             shown = "not judged" if value is None else value
-            raise TrustError(f"{where}: check threshold {name} = {shown} is looser than this endpoint's policy ({largest:g}); "
+            raise TrustError(f"{where}: check threshold {name} = {shown} is looser than the accepted policy ({largest:g}); "
                              "check again with the default thresholds")
     if policy.require_compliant and settings.get("compliant") is not True:
-        raise TrustError(f"{where}: checked without the compliant controller; this endpoint's policy requires it")
+        raise TrustError(f"{where}: checked without the compliant controller; the accepted policy requires it")
     robot = attested.get("robot") if isinstance(attested.get("robot"), dict) else {}
     if robot_sha256 is not None and robot.get("sha256") != robot_sha256:
         raise TrustError(f"{where}: checked with robot file {robot.get('file')} (sha256 {str(robot.get('sha256'))[:12]}...), "

@@ -66,7 +66,7 @@ def test_send_refuses_forged_untrusted_loosened_and_edited_records(robot, tmp_pa
         send_plan(path, "127.0.0.1:1")
     # the loosening: --max-handle-force 1000 --prismatic-tolerance 1, signed by a trusted key
     _checked(path, _plan(robot), max_handle_force=1000.0)
-    with pytest.raises(TrustError, match=r"threshold max_handle_force = 1000.0 is looser than this endpoint's policy \(50\)"):
+    with pytest.raises(TrustError, match=r"threshold max_handle_force = 1000.0 is looser than the accepted policy \(50\)"):
         send_plan(path, "127.0.0.1:1")
     _checked(path, _plan(robot), prismatic_tolerance=1.0)
     with pytest.raises(TrustError, match=r"threshold prismatic_tolerance = 1.0 is looser"):
