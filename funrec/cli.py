@@ -94,20 +94,16 @@ def _cmd_synth(args: argparse.Namespace) -> int:
 
 def _cmd_check(args: argparse.Namespace) -> int:
     from funrec.formats.capture import load_capture
+    from funrec.formats.capture_usable import check_capture_usable
 
     capture = load_capture(args.capture)
     with progress_bar(f"decoding {capture.root.name}") as progress:
-        for frame in range(len(capture)):
-            capture.rgb(frame)
-            capture.depth_m(frame)
-            for kind in capture.mask_paths:
-                capture.mask(kind, frame)
-            progress(frame + 1, len(capture))
+        check_capture_usable(capture, progress)
     K = capture.intrinsics
     masks = ", ".join(sorted(capture.mask_paths)) or "none"
     print(
         f"{capture.root}: {len(capture)} frames {K.width}x{K.height} at {K.fps:g} fps, "
-        f"fx {K.fx:.1f} fy {K.fy:.1f}, masks: {masks}, all frames readable"
+        f"fx {K.fx:.1f} fy {K.fy:.1f}, masks: {masks}, all frames readable and usable"
     )
     return 0
 

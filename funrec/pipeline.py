@@ -28,6 +28,7 @@ from funrec.formats.affordances import TWIN_HAND_MASKS, write_affordances
 from funrec.formats.capture import Capture, load_capture
 from funrec.formats.fragments import Fragment, Fragments, write_fragments
 from funrec.formats.meshes import as_written
+from funrec.formats.staged_folder import refuse_output_over_input
 from funrec.formats.twin import ArticulatedPart, TwinArticulation, make_part
 from funrec.geometry.transforms import transform_points
 from funrec.parts.articulation import (
@@ -369,7 +370,9 @@ def reconstruct(
     Raises:
         CaptureError: the capture is malformed (names file and frame).
         ReconstructionError: the capture cannot be reconstructed (says why).
+        FunrecError: ``out_dir`` is, contains or lies inside ``capture_dir``.
     """
+    refuse_output_over_input(out_dir, capture_dir)
     if config.blas_threads <= 0:
         return _reconstruct(capture_dir, out_dir, config, progress, overwrite)
     with threadpool_limits(limits=config.blas_threads, user_api="blas"):

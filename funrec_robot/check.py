@@ -18,7 +18,7 @@ joints); peak handle force below a bound (optional); no joint position, velocity
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -131,6 +131,10 @@ class CheckReport:
     point from the material handle point, m)."""
     video: str | None = None
     """Path of the video, if one was written."""
+    scene_file: str = ""
+    """The scene (MJCF) the plan was checked in."""
+    robot_file: str = ""
+    """The robot YAML file it was checked with."""
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -214,7 +218,8 @@ def check_plan(
         eq.active = False
         eq.solref = list(config.attachment_solref)
     model = spec.compile()
-    return _Execution(plan, robot, model, joint_name, T_sp, config).run(video)
+    report = _Execution(plan, robot, model, joint_name, T_sp, config).run(video)
+    return replace(report, scene_file=str(Path(scene_xml).resolve()), robot_file=str(robot.yaml_path))
 
 
 class _Execution:

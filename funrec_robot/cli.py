@@ -125,7 +125,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
     from funrec_robot.check_record import write_check_record
 
     report = check_plan_file(args.plan, args.scene, args.joint, args.gt, robot, config, args.video)
-    report_path = write_check_record(report, args.plan, args.report)
+    report_path = write_check_record(report, args.plan, config, args.report)
     verdict = "PASS" if report.passed else "FAIL (" + ", ".join(f"{f.criterion} at {f.time:.2f} s" for f in report.failures) + ")"
     print(
         f"{verdict}: {report.joint} ended at {report.final_state:.3f} (target {report.target_state:.3f}), peak handle force "
@@ -176,9 +176,16 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
 
 def _cmd_send(args: argparse.Namespace) -> int:
+    from funrec_robot.check_record import require_passing_record
     from funrec_robot.driver import send_plan
 
-    result = send_plan(args.plan, args.to, timeout=args.timeout)
+    require_passing_record(args.plan)  # refuse before connecting (send_plan verifies again)
+    driver = None if args.to.startswith("ros2://") else _connect(args)
+    try:
+        result = send_plan(args.plan, args.to, timeout=args.timeout, driver=driver)
+    finally:
+        if driver is not None:
+            driver.close()
     print(f"{result.event}: {result.detail} ({result.wall_time:.1f} s, plan {result.plan_id[:12]})")
     return 0 if result.event == "done" else EXIT_CHECK_FAILED
 
@@ -186,18 +193,67 @@ def _cmd_send(args: argparse.Namespace) -> int:
 def _cmd_serve_sim(args: argparse.Namespace) -> int:
     from funrec.config import config_from_args
     from funrec_robot.catalog import resolve_robot
+    from funrec_robot.endpoint import return_large_buffers_to_the_os
+    from funrec_robot.protocol import PROTOCOL
     from funrec_robot.robot import load_robot
     from funrec_robot.sim_server import SimServerConfig, make_sim_server
 
+    return_large_buffers_to_the_os()
     server = make_sim_server(load_robot(resolve_robot(args.robot)), args.scene, config_from_args(SimServerConfig, args))
     host, port = server.server_address[:2]
-    print(f"serving {server.sim.robot.name} (funrec-robot/1) on {host}:{port}; Ctrl-C to stop", flush=True)
+    security = f"TLS, certificate {server.certificate}" if server.ssl is not None else "NO TLS, NO AUTHENTICATION"
+    print(f"serving {server.sim.robot.name} ({PROTOCOL}, {security}) on {host}:{port}; Ctrl-C to stop", flush=True)
     try:
         server.serve_forever()
     except KeyboardInterrupt:
         pass
     finally:
         server.server_close()
+    return 0
+
+
+def _connect(args: argparse.Namespace) -> Any:
+    """A funrec-robot/2 client from --to, --server-cert, --token-file and --no-tls."""
+    from funrec_robot.driver import TcpDriver
+
+    token = args.token_file.read_text().strip() if args.token_file is not None else None
+    return TcpDriver(args.to, tls=not args.no_tls, server_cert=args.server_cert, token=token)
+
+
+def _cmd_estop(args: argparse.Namespace) -> int:
+    driver = _connect(args)
+    try:
+        status = driver.request("estop")["status"]
+    finally:
+        driver.close()
+    print(f"E-Stop sent: the robot is {status}")
+    return 0
+
+
+def _cmd_keys(args: argparse.Namespace) -> int:
+    from funrec_robot.keys import config_dir, export_public, fingerprint, load_signing_key, trust_key, trusted_keys
+    from funrec_robot.tls import CERT_FILE, authorize_token, client_token
+
+    if args.trust:
+        path = trust_key(args.trust, args.label)
+        print(f"trusted {fingerprint(args.trust.split()[0].lower())}: {path}")
+        return 0
+    if args.authorize_token:
+        print(f"authorized a token: {authorize_token(args.authorize_token, args.label)}")
+        return 0
+    key = load_signing_key()
+    if args.export:
+        print(export_public(key))
+        return 0
+    if args.show_token:
+        print(client_token())
+        return 0
+    print(f"folder {config_dir()}")
+    print(f"signing key {fingerprint(key.public_hex)} (public {key.public_hex})")
+    for public, label in trusted_keys().items():
+        print(f"trusted {fingerprint(public)} {label}")
+    cert = config_dir() / CERT_FILE
+    print(f"endpoint certificate {cert if cert.is_file() else '(none yet: serve-sim creates it)'}")
     return 0
 
 
@@ -290,15 +346,22 @@ def _add_send(sub: Any) -> None:
     p = sub.add_parser(
         "send",
         help="send a checked plan to a robot endpoint and run it",
-        description="Refuses a plan without a passing check record of its exact bytes (PLAN.check.json from "
-        "`funrec-robot check`). Uploads it, starts it, sends heartbeats and waits for the end. ADDRESS: host:port "
-        "of a funrec-robot/1 endpoint (e.g. serve-sim) or ros2://NAMESPACE (FollowJointTrajectory; needs rclpy). "
-        "Exit 0 when the robot reports done, 3 when it stopped or faulted.",
+        description="Refuses a plan without a signed, trusted, passing check record of its exact bytes (PLAN.check.json "
+        "from `funrec-robot check`). Connects over TLS, authenticates, takes the lease, uploads, starts, sends heartbeats "
+        "and waits for the end. ADDRESS: host:port of a funrec-robot/2 endpoint (e.g. serve-sim) or ros2://NAMESPACE "
+        "(FollowJointTrajectory; needs rclpy). Exit 0 when the robot reports done, 3 when it stopped or faulted.",
     )
     p.add_argument("plan", type=Path, help="plan.json (its .check.json beside it)")
     p.add_argument("--to", required=True, metavar="ADDRESS", help="endpoint: host:port, tcp://host:port or ros2://NAMESPACE")
     p.add_argument("--timeout", type=float, help="stop the robot after this many seconds (default: duration + 30 s)")
+    _add_connection_arguments(p)
     p.set_defaults(handler=_cmd_send)
+
+
+def _add_connection_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--server-cert", type=Path, help="the endpoint's certificate to pin (default: this machine's endpoint's)")
+    p.add_argument("--token-file", type=Path, help="file holding the token to present (default: this user's)")
+    p.add_argument("--no-tls", action="store_true", help="plain TCP to an endpoint started with --no-auth (loopback experiments)")
 
 
 def _add_serve_sim(sub: Any) -> None:
@@ -307,9 +370,11 @@ def _add_serve_sim(sub: Any) -> None:
 
     p = sub.add_parser(
         "serve-sim",
-        help="a simulated robot endpoint (funrec-robot/1 over TCP) that runs plans in MuJoCo in real time",
-        description="Listen for funrec-robot/1 clients (docs/robot_protocol.md): upload, start, stop, state stream, "
-        "heartbeat. Plans are validated against this robot file's limits and run on its servos in real time.",
+        help="a simulated robot endpoint (funrec-robot/2 over TLS) that runs plans in MuJoCo in real time",
+        description="Listen for funrec-robot/2 clients (docs/robot_protocol.md): TLS, token or client-certificate "
+        "authentication, one lease holder who may upload, start and stop, E-Stop from any authenticated client, "
+        "the holder's heartbeat, state stream. Plans need a signed check record from a trusted key and are validated "
+        "against this robot file's limits and run on its servos in real time.",
     )
     p.add_argument("--robot", default=_default_robot(), help="robot YAML file or name (default: %(default)s)")
     p.add_argument("--scene", type=Path, help="MJCF scene to stand the robot in (default: an empty world)")
@@ -317,8 +382,35 @@ def _add_serve_sim(sub: Any) -> None:
     p.set_defaults(handler=_cmd_serve_sim)
 
 
+def _add_estop(sub: Any) -> None:
+    p = sub.add_parser(
+        "estop",
+        help="E-Stop a funrec-robot/2 endpoint (any authenticated client, lease or not)",
+        description="Connect, authenticate and send an E-Stop: whatever runs stops and holds, status fault.",
+    )
+    p.add_argument("--to", required=True, metavar="ADDRESS", help="endpoint: host:port or tcp://host:port")
+    _add_connection_arguments(p)
+    p.set_defaults(handler=_cmd_estop)
+
+
+def _add_keys(sub: Any) -> None:
+    p = sub.add_parser(
+        "keys",
+        help="show, export and trust check-record signing keys; authorize client tokens",
+        description="Keys live in $XDG_CONFIG_HOME/funrec-robot/ (created on first use; private files mode 0600). "
+        "Without options: show this user's signing key, the trusted keys and the endpoint certificate.",
+    )
+    group = p.add_mutually_exclusive_group()
+    group.add_argument("--export", action="store_true", help="print this user's public signing key for another machine")
+    group.add_argument("--trust", metavar="HEX", help="trust records signed by this public key (64 hex digits)")
+    group.add_argument("--authorize-token", metavar="TOKEN", help="let this machine's endpoint accept this client token")
+    group.add_argument("--show-token", action="store_true", help="print this user's client token (a secret)")
+    p.add_argument("--label", default="", help="a name for the trusted key or token")
+    p.set_defaults(handler=_cmd_keys)
+
+
 _COMMANDS: tuple[Callable[[Any], None], ...] = (
-    _add_robots, _add_describe, _add_plan, _add_check, _add_bench, _add_replay, _add_send, _add_serve_sim,
+    _add_robots, _add_describe, _add_plan, _add_check, _add_bench, _add_replay, _add_send, _add_serve_sim, _add_estop, _add_keys,
 )
 
 

@@ -1,8 +1,8 @@
-"""Sending checked plans to robots: the :class:`RobotDriver` interface, its ``funrec-robot/1`` TCP client
-(:class:`TcpDriver`, e.g. for ``serve-sim``) and :func:`send_plan`, which refuses a plan without a passing
-check record of its exact bytes.
+"""Sending checked plans to robots: the :class:`RobotDriver` interface, its ``funrec-robot/2`` client
+(:class:`TcpDriver`, e.g. for ``serve-sim``) and :func:`send_plan`, which refuses a plan without a signed,
+trusted, passing check record of its exact bytes.
 
-Addresses: ``host:port`` or ``tcp://host:port`` (a ``funrec-robot/1`` endpoint); ``ros2://NAMESPACE``
+Addresses: ``host:port`` or ``tcp://host:port`` (a ``funrec-robot/2`` endpoint); ``ros2://NAMESPACE``
 (:class:`funrec_robot.ros2_driver.Ros2Driver`, FollowJointTrajectory actions; needs rclpy).
 """
 
@@ -12,7 +12,9 @@ import itertools
 import json
 import logging
 import queue
+import select
 import socket
+import ssl
 import threading
 import time
 from collections.abc import Callable
@@ -20,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
+from funrec.errors import FormatError
 from funrec_robot.check_record import require_passing_record
 from funrec_robot.protocol import PROTOCOL, LineReader, ProtocolError, encode, parse_address
 
@@ -62,15 +65,46 @@ class RobotDriver(Protocol):
 
 
 class TcpDriver:
-    """Client of a ``funrec-robot/1`` endpoint (see :mod:`funrec_robot.protocol`)."""
+    """Client of a ``funrec-robot/2`` endpoint (see :mod:`funrec_robot.protocol`): TLS pinned to the endpoint's
+    certificate and a bearer token (default: this machine's, under ``$XDG_CONFIG_HOME/funrec-robot/``).
 
-    def __init__(self, address: str, timeout: float = 10.0, on_state: Callable[[dict[str, Any]], None] | None = None) -> None:
+    One thread reads; requests write. The TLS socket is never used by two threads at once (OpenSSL forbids
+    it): reads poll with a short timeout under the same lock as writes.
+    """
+
+    POLL_S = 0.01
+    """Longest a request waits for the reader to let go of the socket, s."""
+
+    def __init__(
+        self,
+        address: str,
+        timeout: float = 10.0,
+        on_state: Callable[[dict[str, Any]], None] | None = None,
+        tls: bool = True,
+        server_cert: str | Path | None = None,
+        token: str | None = None,
+        authenticate: bool = True,
+        client_cert: str | Path | None = None,
+        client_key: str | Path | None = None,
+    ) -> None:
         host, port = parse_address(address)
+        context = None
+        if tls:
+            from funrec_robot.tls import client_context, client_token
+
+            context = client_context(None if server_cert is None else Path(server_cert),
+                                     None if client_cert is None else Path(client_cert), None if client_key is None else Path(client_key))
+            token = client_token() if token is None and authenticate else token
+        self.token = token if authenticate else None
         try:
-            self._sock = socket.create_connection((host, port), timeout=timeout)
+            raw = socket.create_connection((host, port), timeout=timeout)
+            self._sock = raw if context is None else context.wrap_socket(raw, server_hostname=None)
+        except ssl.SSLError as exc:
+            raise ProtocolError(f"{host}:{port}: TLS failed ({exc.reason}): not the endpoint whose certificate is trusted, "
+                                "or not a funrec-robot/2 endpoint") from None
         except OSError as exc:
             raise ProtocolError(f"{host}:{port}: cannot connect: {exc}") from None
-        self._sock.settimeout(None)
+        self._sock.settimeout(self.POLL_S)
         self.timeout = timeout
         self.on_state = on_state
         self.latest_state: dict[str, Any] | None = None
@@ -78,31 +112,60 @@ class TcpDriver:
         self._replies: dict[int, queue.Queue] = {}
         self._events: queue.Queue = queue.Queue()
         self._lock = threading.Lock()
+        self._closed = False
+        self.unsolicited_errors: list[str] = []
+        """Errors the endpoint sent without a request id (a line it could not read), oldest first."""
         self._reader = threading.Thread(target=self._read, name="funrec-driver", daemon=True)
         self._reader.start()
+        self.info = self.hello()
+
+    def _recv(self, size: int) -> bytes:
+        """Poll the socket under the lock; returns b'' at end of stream (raises when closed by us)."""
+        while not self._closed:
+            pending = isinstance(self._sock, ssl.SSLSocket) and self._sock.pending() > 0
+            if not pending and not select.select([self._sock], [], [], 0.05)[0]:
+                continue  # wait for bytes without holding the lock, so requests are written at once
+            with self._lock:
+                try:
+                    return self._sock.recv(size)
+                except (TimeoutError, ssl.SSLWantReadError):
+                    pass
+        raise OSError("closed")
 
     def _read(self) -> None:
-        reader = LineReader(self._sock)
+        reader = LineReader(_Polled(self._recv))
         while True:
             try:
                 message = reader.read()
-            except (ProtocolError, OSError) as exc:
+            except (ProtocolError, OSError, ValueError) as exc:
                 message = None
                 log.debug("connection ended: %s", exc)
             if message is None:
-                self._events.put({"type": "event", "event": "fault", "detail": "connection to the endpoint closed"})
+                why = "connection to the endpoint closed" + (f" ({self.unsolicited_errors[-1]})" if self.unsolicited_errors else "")
+                self._events.put({"type": "event", "event": "fault", "detail": why})
                 for waiting in list(self._replies.values()):
-                    waiting.put({"ok": False, "error": "connection to the endpoint closed"})
+                    waiting.put({"ok": False, "error": why})
                 return
             kind = message.get("type")
             if kind == "reply" and message.get("id") in self._replies:
                 self._replies[message["id"]].put(message)
+            elif kind == "reply" and message.get("id") is None and not message.get("ok"):
+                self.unsolicited_errors.append(str(message.get("error")))  # e.g. a line the endpoint could not parse
             elif kind == "state":
                 self.latest_state = message
                 if self.on_state is not None:
                     self.on_state(message)
             elif kind == "event":
                 self._events.put(message)
+
+    def send_raw(self, data: bytes) -> None:
+        """Write bytes as they are (tests of the endpoint's handling of malformed input)."""
+        with self._lock:
+            self._sock.settimeout(self.timeout)
+            try:
+                self._sock.sendall(data)
+            finally:
+                self._sock.settimeout(self.POLL_S)
 
     def request(self, op: str, **fields: Any) -> dict[str, Any]:
         """Send one request and wait for its reply.
@@ -114,8 +177,7 @@ class TcpDriver:
         box: queue.Queue = queue.Queue()
         self._replies[ident] = box
         try:
-            with self._lock:
-                self._sock.sendall(encode({"id": ident, "op": op, **fields}))
+            self.send_raw(encode({"id": ident, "op": op, **fields}))
             reply = box.get(timeout=self.timeout)
         except queue.Empty:
             raise ProtocolError(f"{op}: no reply within {self.timeout} s") from None
@@ -124,16 +186,25 @@ class TcpDriver:
         finally:
             self._replies.pop(ident, None)
         if not reply.get("ok"):
-            raise ProtocolError(f"{op}: {reply.get('error', 'refused')}")
+            error = str(reply.get("error", "refused"))
+            raise ProtocolError(error if error.startswith(f"{op}:") else f"{op}: {error}")
         return reply
 
     def hello(self) -> dict[str, Any]:
+        """Protocol handshake, then authenticate if the endpoint asks for it."""
         reply = self.request("hello", protocol=PROTOCOL)
         if reply.get("protocol") != PROTOCOL:
             raise ProtocolError(f"endpoint speaks {reply.get('protocol')!r}, expected {PROTOCOL!r}")
+        if not reply.get("authenticated") and self.token is not None:
+            self.request("auth", token=self.token)
         return reply
 
+    def acquire(self) -> None:
+        """Take the lease (exclusive control)."""
+        self.request("acquire")
+
     def upload(self, plan_text: str, check_record: dict[str, Any]) -> str:
+        self.acquire()  # (again: a lease lapses after heartbeat_timeout of silence)
         return str(self.request("upload", plan_text=plan_text, check=check_record)["plan_id"])
 
     def start(self, plan_id: str) -> None:
@@ -141,6 +212,9 @@ class TcpDriver:
 
     def stop(self) -> None:
         self.request("stop")
+
+    def estop(self) -> None:
+        self.request("estop")
 
     def heartbeat(self) -> None:
         self.request("heartbeat")
@@ -155,15 +229,24 @@ class TcpDriver:
             return None
 
     def close(self) -> None:
-        try:
-            self._sock.shutdown(socket.SHUT_RDWR)
-        except OSError:
-            pass
-        self._sock.close()
+        self._closed = True
+        with self._lock:
+            try:
+                self._sock.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+            self._sock.close()
+
+
+class _Polled:
+    """A socket-like object whose ``recv`` is the driver's locked poll (for :class:`LineReader`)."""
+
+    def __init__(self, recv: Callable[[int], bytes]) -> None:
+        self.recv = recv
 
 
 def open_driver(address: str, timeout: float = 10.0) -> RobotDriver:
-    """A driver for an address: ``ros2://NAMESPACE`` (needs rclpy), else a ``funrec-robot/1`` TCP endpoint."""
+    """A driver for an address: ``ros2://NAMESPACE`` (needs rclpy), else a ``funrec-robot/2`` endpoint."""
     if address.startswith("ros2://"):
         from funrec_robot.ros2_driver import Ros2Driver
 
@@ -206,7 +289,10 @@ def send_plan(
     """
     plan_path = Path(plan_path)
     record = require_passing_record(plan_path)
-    plan_text = plan_path.read_text()
+    try:
+        plan_text = plan_path.read_bytes().decode("utf-8")  # the exact bytes the record hashed (no newline translation)
+    except UnicodeDecodeError as exc:
+        raise FormatError(plan_path, f"not UTF-8 text: {exc.reason} at byte {exc.start}") from None
     duration = float(json.loads(plan_text)["t"][-1])
     own = driver is None
     driver = open_driver(address) if driver is None else driver

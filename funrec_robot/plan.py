@@ -51,6 +51,7 @@ from funrec_robot.task import (
     path_states,
     resolve_target,
 )
+from funrec_robot.task_bounds import check_task_bounds
 from funrec_robot.task_sources import load_task, locate_scene
 from funrec_robot.trajopt import BasePlacement, PlacementConfig, PlacementProblem, place_base
 from funrec_robot.whole_body import whole_body_configurations
@@ -316,6 +317,7 @@ def plan_interaction(
     geometry = measure_robot(robot)
     start_state = task.state_current if start is None else float(start)
     target_state = resolve_target(task, target)
+    check_task_bounds(task, start_state, target_state)
     final_state = None  # where the part comes to rest after release, if not where the hand lets go
     capped = None
     if isinstance(target, str) and target.strip().lower() in ("open", "close"):

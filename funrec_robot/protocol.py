@@ -1,4 +1,4 @@
-"""The funrec robot protocol (``funrec-robot/1``): newline-delimited JSON over TCP, and the checks a robot
+"""The funrec robot protocol (``funrec-robot/2``): newline-delimited JSON over TLS, and the checks a robot
 endpoint makes on a plan before it accepts it. docs/robot_protocol.md is the prose description.
 
 Every message is one UTF-8 JSON object on one line. Requests carry ``"id"`` and ``"op"``; the endpoint
@@ -9,6 +9,7 @@ pushes ``{"type": "state", ...}`` and ``{"type": "event", ...}`` messages unaske
 from __future__ import annotations
 
 import json
+import math
 import socket
 from dataclasses import dataclass
 from typing import Any
@@ -19,14 +20,16 @@ from funrec.errors import FunrecError
 from funrec_robot.plan_file import Plan
 from funrec_robot.robot import RobotDescription
 
-PROTOCOL = "funrec-robot/1"
-"""Protocol name and version, exchanged in ``hello``."""
-OPS = ("hello", "upload", "start", "stop", "subscribe", "heartbeat", "status")
+PROTOCOL = "funrec-robot/2"
+"""Protocol name and version, exchanged in ``hello`` (2: TLS, authentication, lease, signed check records)."""
+OPS = ("hello", "auth", "acquire", "release", "upload", "start", "stop", "estop", "reset", "subscribe", "heartbeat", "status")
 """Request operations."""
 STATUSES = ("idle", "ready", "running", "done", "stopped", "fault")
 """Endpoint states: nothing uploaded, plan uploaded, executing, finished, stopped on request, stopped by a fault."""
-MAX_LINE_BYTES = 64 << 20
+MAX_LINE_BYTES = 4 << 20
 """Longest accepted message, bytes (a 60 s plan at 100 Hz is about 2 MB)."""
+MAX_UNAUTHENTICATED_LINE_BYTES = 64 << 10
+"""Longest message accepted before a client has authenticated, bytes."""
 DEFAULT_PORT = 47300
 """Port of ``funrec-robot serve-sim`` unless told otherwise."""
 
@@ -48,6 +51,12 @@ class LimitMargins:
     re-check their limits densely after toppra, so they reach 1.0 at most)."""
     max_period: float = 0.05
     """Longest gap between two samples, s (the endpoint interpolates linearly between them)."""
+
+    def __post_init__(self) -> None:
+        for name in ("position", "velocity", "acceleration", "max_period"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0.0:
+                raise FunrecError(f"margins-{name.replace('_', '-')} {value!r}: expected a finite number >= 0")
 
 
 def validate_plan(plan: Plan, robot: RobotDescription, margins: LimitMargins = LimitMargins()) -> list[str]:
@@ -83,6 +92,9 @@ def validate_plan(plan: Plan, robot: RobotDescription, margins: LimitMargins = L
     low, high = sorted((robot.gripper.open, robot.gripper.closed))
     if np.any(plan.gripper_command < low - 1e-6) or np.any(plan.gripper_command > high + 1e-6):
         problems.append(f"gripper command outside [{low}, {high}]")
+    for name, value in (("grasp", plan.grasp_command), ("open", plan.gripper_open), ("closed", plan.gripper_closed)):
+        if not np.isfinite(value) or not low - 1e-6 <= value <= high + 1e-6:
+            problems.append(f"gripper {name} command {value} outside [{low}, {high}]")
     return problems
 
 
@@ -91,34 +103,59 @@ def encode(message: dict[str, Any]) -> bytes:
     return (json.dumps(message, separators=(",", ":")) + "\n").encode()
 
 
-class LineReader:
-    """Reads newline-delimited JSON objects from a socket."""
+def decode_line(line: bytes) -> dict[str, Any]:
+    """One message from one line's bytes.
 
-    def __init__(self, sock: socket.socket) -> None:
+    Raises:
+        ProtocolError: not UTF-8, not JSON (NaN and Infinity included) or not an object.
+    """
+    try:
+        message = json.loads(line.decode("utf-8"), parse_constant=_refuse_constant)
+    except UnicodeDecodeError as exc:
+        raise ProtocolError(f"not UTF-8: {exc.reason} at byte {exc.start}") from None
+    except (json.JSONDecodeError, RecursionError) as exc:
+        raise ProtocolError(f"not JSON: {str(exc)[:200]}") from None
+    if not isinstance(message, dict):
+        raise ProtocolError(f"expected a JSON object, got {type(message).__name__}")
+    return message
+
+
+def _refuse_constant(name: str) -> Any:
+    raise json.JSONDecodeError(f"{name} is not JSON", name, 0)
+
+
+class LineReader:
+    """Reads newline-delimited JSON objects from a blocking socket, in time linear in the bytes read."""
+
+    def __init__(self, sock: socket.socket, max_bytes: int = MAX_LINE_BYTES) -> None:
         self._sock = sock
-        self._buffer = b""
+        self._buffer = bytearray()
+        self._scanned = 0
+        self.max_bytes = max_bytes
 
     def read(self) -> dict[str, Any] | None:
         """The next message, or None when the peer closed the connection.
 
         Raises:
-            ProtocolError: a line longer than ``MAX_LINE_BYTES`` or not a JSON object.
+            ProtocolError: a line longer than ``max_bytes`` or not a JSON object.
         """
-        while b"\n" not in self._buffer:
-            if len(self._buffer) > MAX_LINE_BYTES:
-                raise ProtocolError(f"message longer than {MAX_LINE_BYTES} bytes")
+        while True:
+            end = self._buffer.find(b"\n", self._scanned)
+            if end >= 0:
+                break
+            self._scanned = len(self._buffer)
+            if len(self._buffer) > self.max_bytes:
+                raise ProtocolError(f"message longer than {self.max_bytes} bytes")
             chunk = self._sock.recv(1 << 16)
             if not chunk:
                 return None
             self._buffer += chunk
-        line, self._buffer = self._buffer.split(b"\n", 1)
-        try:
-            message = json.loads(line)
-        except json.JSONDecodeError as exc:
-            raise ProtocolError(f"not JSON: {exc}") from None
-        if not isinstance(message, dict):
-            raise ProtocolError(f"expected a JSON object, got {type(message).__name__}")
-        return message
+        line = bytes(self._buffer[:end])
+        del self._buffer[: end + 1]
+        self._scanned = 0
+        if len(line) > self.max_bytes:
+            raise ProtocolError(f"message longer than {self.max_bytes} bytes")
+        return decode_line(line)
 
 
 def parse_address(address: str, default_port: int = DEFAULT_PORT) -> tuple[str, int]:
@@ -143,6 +180,8 @@ __all__ = [
     "STATUSES",
     "LimitMargins",
     "LineReader",
+    "MAX_UNAUTHENTICATED_LINE_BYTES",
+    "decode_line",
     "ProtocolError",
     "encode",
     "parse_address",

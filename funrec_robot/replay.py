@@ -173,7 +173,7 @@ def replay_twin(
             except FunrecError as exc:
                 step = ReplayStep(hold, joint, False, False, str(exc), "", "", time.perf_counter() - clock)
             else:
-                record = write_check_record(report, plan_file)
+                record = write_check_record(report, plan_file, check_config)
                 if clip is not None:
                     clips.append(clip)
                 failure = "; ".join(f"{f.criterion} at {f.time:.2f} s: {f.detail}" for f in report.failures)

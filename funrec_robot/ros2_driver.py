@@ -20,6 +20,8 @@ from typing import Any
 import numpy as np
 
 from funrec.typed import FloatArray
+from funrec_robot.check_record import CheckPolicy, verify_check_record
+from funrec_robot.keys import TrustError, trusted_keys
 from funrec_robot.plan_file import Plan, plan_from_json, release_offset
 from funrec_robot.protocol import ProtocolError
 
@@ -42,6 +44,8 @@ class Ros2Config:
     """GripperCommand max_effort, N."""
     point_stride: int = 5
     """Send every this many plan samples (100 Hz plans -> 20 Hz points; the controller interpolates)."""
+    policy: CheckPolicy = field(default_factory=CheckPolicy)
+    """The loosest check whose records this adapter accepts."""
 
 
 def trajectory_points(plan: Plan, columns: list[int], stride: int) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -108,8 +112,10 @@ class Ros2Driver:
 
     def upload(self, plan_text: str, check_record: dict[str, Any]) -> str:
         plan_id = hashlib.sha256(plan_text.encode()).hexdigest()
-        if check_record.get("plan_sha256") != plan_id or check_record.get("passed") is not True:
-            raise ProtocolError("refused: the check record is not a passing record of this plan")
+        try:  # the robot side's own verification: signed by a trusted key, passing, of these bytes, not loosened
+            verify_check_record(check_record, plan_id, trusted_keys(), self.config.policy)
+        except TrustError as exc:
+            raise ProtocolError(f"refused: {exc}") from None
         plan = plan_from_json(json.loads(plan_text), "<plan>")
         self._plans[plan_id] = plan
         return plan_id

@@ -1,20 +1,25 @@
-"""``funrec-robot serve-sim``: a reference robot endpoint that speaks ``funrec-robot/1`` over TCP and executes
-plans in MuJoCo in real time.
+"""``funrec-robot serve-sim``: a reference robot endpoint that speaks ``funrec-robot/2`` (see
+:mod:`funrec_robot.endpoint`) and executes plans in MuJoCo in real time.
 
-It behaves like a robot controller: it validates an uploaded plan against its own robot file's limits (and
-its check record's hash), runs it on the robot's servos only after ``start``, streams the measured state,
-stops and holds on ``stop``, and stops and holds by itself when no client has sent anything (a heartbeat or
-any request) for ``heartbeat_timeout`` while a plan runs. One plan runs at a time.
+It behaves like a robot controller: it accepts an uploaded plan only with a signed, trusted, passing check
+record of its exact bytes and validates it against its own robot file's limits; it runs it on the robot's
+servos only after ``start`` by the client holding the lease, if the plan starts where the robot is; it
+streams the measured state; it stops and holds on ``stop``, on an E-Stop, when the lease holder's heartbeats
+cease, when a command would leave its range, when the simulation goes non-finite or resets, and when the
+execution overruns the plan's duration. One plan runs at a time.
 """
 
 from __future__ import annotations
 
+import bisect
 import hashlib
 import json
 import logging
-import socketserver
+import math
 import threading
 import time
+from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -23,8 +28,10 @@ import mujoco
 import numpy as np
 
 from funrec.errors import FunrecError
-from funrec_robot.plan_file import Plan, plan_from_json, release_offset
-from funrec_robot.protocol import PROTOCOL, LimitMargins, LineReader, ProtocolError, encode, validate_plan
+from funrec_robot.check_record import CheckPolicy, verify_check_record
+from funrec_robot.keys import TrustError, trusted_keys
+from funrec_robot.plan_file import Plan, plan_from_json, release_offset, sha256_file
+from funrec_robot.protocol import LimitMargins, ProtocolError, validate_plan
 from funrec_robot.robot import RobotDescription
 from funrec_robot.sim_model import build_mujoco_model, gripper_position, reset_to_home, robot_indices
 
@@ -33,24 +40,67 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class SimServerConfig:
-    """Settings of the simulated robot endpoint."""
+    """Settings of the simulated robot endpoint; every number must be finite and positive."""
 
     host: str = "127.0.0.1"
-    """Address to listen on (localhost: the endpoint takes motion commands, keep it off open networks)."""
+    """Address to listen on."""
     port: int = 47300
     """TCP port; 0 picks a free one."""
     heartbeat_timeout: float = 1.0
-    """A running plan stops when its client sends nothing for this long, s."""
+    """A running plan stops, and the lease lapses, when its holder sends nothing for this long, s (at most 60)."""
     real_time_factor: float = 1.0
-    """Simulated seconds per wall-clock second (1: real time)."""
+    """Simulated seconds per wall-clock second (1: real time; at most 10)."""
     require_check: bool = True
-    """Refuse plans without a passing check record of their exact bytes."""
+    """Refuse plans without a signed, trusted, passing check record of their exact bytes."""
     margins: LimitMargins = field(default_factory=LimitMargins)
     """Tolerances of the plan validation."""
+    start_tolerance: float = 0.05
+    """Largest gap between the plan's first sample and the robot's state at ``start``, rad or m."""
+    end_tolerance: float = 0.1
+    """Largest gap between the plan's last sample and the robot's state when it ends, rad or m (else a fault)."""
+    spawn_at_first_plan: bool = True
+    """A fresh simulation (or one after ``reset``) puts the robot at its first plan's first sample, as a real
+    robot's own navigation would bring it there; every later plan must start within ``start_tolerance``."""
+    duration_margin: float = 2.0
+    """An execution still running this long after the plan's duration (wall clock, times the real-time factor)
+    is a fault, s."""
+    auth: bool = True
+    """TLS with token or client-certificate authentication (False: plain TCP, anyone local may move the robot)."""
+    unauthenticated_beyond_loopback: bool = False
+    """With auth False, allow a non-loopback host: anyone who reaches the port can move the robot."""
+    client_ca: str = ""
+    """PEM of a CA whose client certificates authenticate (empty: tokens only)."""
+    max_connections: int = 16
+    """Connections served at once; more are told so and closed."""
+    idle_timeout: float = 60.0
+    """An authenticated connection that sends nothing for this long is closed, s (10 s before authenticating)."""
+    max_plans: int = 4
+    """Uploaded plans kept; the oldest not running is evicted."""
+    max_send_buffer: int = 1 << 20
+    """A client with more than this many bytes waiting to be sent to it is dropped (it does not read), bytes."""
+    max_message_rate: float = 200.0
+    """Messages a second read from one connection (a tenth of it before authenticating); more wait their turn."""
+
+    def __post_init__(self) -> None:
+        bounded = {"heartbeat_timeout": 60.0, "real_time_factor": 10.0, "start_tolerance": 10.0, "end_tolerance": 10.0,
+                   "duration_margin": 3600.0, "idle_timeout": 86400.0, "max_message_rate": 1e6}
+        for name, largest in bounded.items():
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or not 0.0 < value <= largest:
+                raise FunrecError(f"{name.replace('_', '-')} {value!r}: expected a finite number in (0, {largest:g}]")
+        for name in ("max_connections", "max_plans", "max_send_buffer"):
+            if int(getattr(self, name)) < 1:
+                raise FunrecError(f"{name.replace('_', '-')} {getattr(self, name)!r}: expected at least 1")
+        if not 0 <= int(self.port) <= 65535:
+            raise FunrecError(f"port {self.port}: expected 0-65535")
 
 
 class SimRobot:
-    """The simulated robot: a MuJoCo model stepped in real time by a thread while a plan runs."""
+    """The simulated robot: a MuJoCo model stepped in real time by a thread while a plan runs.
+
+    Thread safety: every method takes ``lock``; ``notify`` (set by the endpoint) is called with it held and
+    must not block.
+    """
 
     def __init__(self, robot: RobotDescription, scene_xml: str | Path | None, config: SimServerConfig) -> None:
         self.robot, self.config = robot, config
@@ -58,31 +108,57 @@ class SimRobot:
         self.data = mujoco.MjData(self.model)
         self.indices = robot_indices(robot, self.model)
         reset_to_home(robot, self.model, self.data)
+        self.robot_sha256 = sha256_file(robot.yaml_path)
+        self.trusted: dict[str, str] | None = None
+        """Trusted signing keys; None: read trusted_keys.txt at every upload (so `keys --trust` needs no restart)."""
+        self.policy = CheckPolicy()
         self.lock = threading.RLock()
         self.status, self.detail = "idle", ""
-        self.plans: dict[str, Plan] = {}
+        self.placed = False
+        self.plans: OrderedDict[str, Plan] = OrderedDict()
         self.plan: Plan | None = None
+        self.plan_id = ""
         self.plan_time = 0.0
         self.last_heartbeat = time.monotonic()
-        self.listeners: list[Any] = []
+        self.notify: Callable[[dict[str, Any]], None] = lambda message: None
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._last_state: dict[str, Any] = {}
+        self._times: list[float] = []
+        self._release_start = math.inf
+        low, high = sorted((robot.gripper.open, robot.gripper.closed))
+        self._gripper_range = (low - 1e-6, high + 1e-6)
+        self.state()
 
     def upload(self, message: dict[str, Any]) -> dict[str, Any]:
+        """Verify, validate and store a plan (see the module docstring)."""
         text = message.get("plan_text")
         if not isinstance(text, str):
             raise ProtocolError("upload needs 'plan_text': the plan.json file's text")
-        plan_id = hashlib.sha256(text.encode()).hexdigest()
+        plan_id = hashlib.sha256(text.encode("utf-8", "surrogatepass")).hexdigest()
         if self.config.require_check:
-            record = message.get("check")
-            if not isinstance(record, dict) or record.get("plan_sha256") != plan_id or record.get("passed") is not True:
-                raise ProtocolError("refused: no passing check record of this exact plan (sha256) came with it")
-        plan = plan_from_json(json.loads(text), "<uploaded plan>")
+            try:
+                trusted = trusted_keys() if self.trusted is None else self.trusted
+                verify_check_record(message.get("check"), plan_id, trusted, self.policy, self.robot_sha256)
+            except TrustError as exc:
+                raise ProtocolError(f"refused: {exc}") from None
+        try:
+            data = json.loads(text, parse_constant=_no_constant)
+        except (ValueError, RecursionError) as exc:
+            raise ProtocolError(f"refused: plan_text is not JSON: {str(exc)[:200]}") from None
+        try:
+            plan = plan_from_json(data, "<uploaded plan>")
+        except (TypeError, ValueError, AttributeError) as exc:
+            raise ProtocolError(f"refused: malformed plan: {str(exc)[:200]}") from None
         problems = validate_plan(plan, self.robot, self.config.margins)
         if problems:
             raise ProtocolError("refused: " + "; ".join(problems[:5]))
         with self.lock:
             self.plans[plan_id] = plan
+            self.plans.move_to_end(plan_id)
+            while len(self.plans) > self.config.max_plans:
+                oldest = next(k for k in self.plans if k != self.plan_id or self.status != "running")
+                del self.plans[oldest]
             if self.status in ("idle", "done", "stopped"):
                 self.status = "ready"
         return {"plan_id": plan_id, "duration": plan.duration, "samples": len(plan.t)}
@@ -94,18 +170,30 @@ class SimRobot:
             plan = self.plans.get(plan_id)
             if plan is None:
                 raise ProtocolError(f"no uploaded plan {plan_id[:12]}...; upload it first")
-            start_gap = np.abs(self.data.qpos[self.indices.qpos] - plan.q[0])
-            if self.status in ("done", "stopped", "fault") and start_gap.max() > 0.05:
-                reset_to_home(self.robot, self.model, self.data)  # a new episode: the simulated robot is put back
-            self.data.qpos[self.indices.qpos] = plan.q[0]  # the simulation starts where the plan does
-            self.data.qvel[:] = 0.0
-            mujoco.mj_forward(self.model, self.data)
-            self.plan, self.plan_time, self.status, self.detail = plan, 0.0, "running", ""
+            q = self.data.qpos[self.indices.qpos]
+            if self.placed or not self.config.spawn_at_first_plan:
+                gap = np.abs(q - plan.q[0])
+                j = int(np.argmax(gap))
+                if gap[j] > self.config.start_tolerance:
+                    raise ProtocolError(
+                        f"refused: the plan starts {gap[j]:.3f} from the robot's state at joint {self.robot.joint_names[j]} "
+                        f"(plan {plan.q[0, j]:.3f}, robot {q[j]:.3f}; tolerance {self.config.start_tolerance}); "
+                        "bring the robot to the plan's start first"
+                    )
+            else:  # a fresh simulation: spawn the robot where its first plan starts
+                self.data.qpos[self.indices.qpos] = plan.q[0]
+                self.data.qvel[:] = 0.0
+                mujoco.mj_forward(self.model, self.data)
+            self.placed = True
+            self.plan, self.plan_id, self.plan_time, self.status, self.detail = plan, plan_id, 0.0, "running", ""
             self.last_heartbeat = time.monotonic()
             self._stop.clear()
             self._thread = threading.Thread(target=self._run, name="funrec-sim", daemon=True)
             self._thread.start()
         return {"status": "running"}
+
+    def heartbeat(self) -> None:
+        self.last_heartbeat = time.monotonic()  # one attribute store: no lock, the network loop never waits
 
     def stop(self, detail: str = "stop requested", status: str = "stopped") -> dict[str, Any]:
         with self.lock:
@@ -113,156 +201,141 @@ class SimRobot:
                 self._halt(status, detail)
         return {"status": self.status}
 
+    def estop(self, who: str) -> dict[str, Any]:
+        """Stop and hold whatever runs; the status becomes ``fault`` (an E-Stop is never a normal end)."""
+        with self.lock:
+            if self.status == "running":
+                self._halt("fault", f"E-Stop by {who}: stopped and holding")
+            else:
+                self.status, self.detail = "fault", f"E-Stop by {who}"
+        return {"status": self.status}
+
+    def reset(self) -> dict[str, Any]:
+        """Simulation only: the robot back home and unplaced (the next plan spawns it)."""
+        with self.lock:
+            if self.status == "running":
+                raise ProtocolError("reset while running; stop first")
+            reset_to_home(self.robot, self.model, self.data)
+            self.placed, self.status, self.detail, self.plan_time = False, "ready" if self.plans else "idle", "", 0.0
+        return {"status": self.status}
+
     def _halt(self, status: str, detail: str) -> None:
         """Hold the current position (caller holds the lock)."""
-        self.data.ctrl[self.indices.actuators] = self.data.qpos[self.indices.qpos]
+        q = self.data.qpos[self.indices.qpos]
+        if np.all(np.isfinite(q)):
+            self.data.ctrl[self.indices.actuators] = q
         self.status, self.detail = status, detail
         self._stop.set()
-        self._event(status, detail)
-
-    def _event(self, event: str, detail: str) -> None:
-        for listener in list(self.listeners):
-            listener.push({"type": "event", "event": event, "detail": detail, "plan_time": round(self.plan_time, 4)})
+        self.notify({"type": "event", "event": status, "detail": detail, "plan_time": round(self.plan_time, 4)})
 
     def state(self) -> dict[str, Any]:
-        with self.lock:
+        """The measured state; never waits for the simulation thread (the network loop calls it): while that
+        thread holds the lock, the state it last left is returned."""
+        if not self.lock.acquire(blocking=False):
+            return dict(self._last_state, status=self.status)
+        try:
             q = self.data.qpos[self.indices.qpos]
             qd = self.data.qvel[self.indices.dof]
             gripper = self.data.ctrl[self.indices.gripper_actuators]
-            return {
+            self._last_state = {
                 "type": "state",
                 "status": self.status,
-                "sim_time": round(float(self.data.time), 4),
+                "sim_time": _json_number(self.data.time),
                 "plan_time": round(self.plan_time, 4),
                 "joint_names": list(self.robot.joint_names),
-                "q": np.round(q, 6).tolist(),
-                "qd": np.round(qd, 6).tolist(),
-                "gripper_command": float(gripper[0]) if gripper.size else None,
+                "q": [_json_number(v) for v in q],
+                "qd": [_json_number(v) for v in qd],
+                "gripper_command": _json_number(gripper[0]) if gripper.size else None,
             }
+            return self._last_state
+        finally:
+            self.lock.release()
+
+    def _step_once(self, plan: Plan, grip_offset: float | None) -> tuple[float | None, str]:
+        """Command the plan at ``plan_time`` (linear interpolation between samples) and step once; returns the
+        release offset and a fault ('' if none)."""
+        model, data, t = self.model, self.data, self.plan_time
+        k = min(max(bisect.bisect_right(self._times, t) - 1, 0), len(self._times) - 2)
+        w = min(max((t - self._times[k]) / (self._times[k + 1] - self._times[k]), 0.0), 1.0)
+        data.ctrl[self.indices.actuators] = plan.q[k] + w * (plan.q[k + 1] - plan.q[k])
+        if grip_offset is None and t >= self._release_start:
+            grip_offset = release_offset(plan, gripper_position(self.indices, data))
+        g = plan.gripper_command
+        command = float(g[k] + w * (g[k + 1] - g[k])) + (grip_offset or 0.0)
+        if self.indices.gripper_actuators.size:
+            if not self._gripper_range[0] <= command <= self._gripper_range[1]:
+                return grip_offset, f"gripper command {command:.4f} at {t:.2f} s outside [{self._gripper_range[0]:.4f}, {self._gripper_range[1]:.4f}]"
+            data.ctrl[self.indices.gripper_actuators] = command
+        before = data.time
+        mujoco.mj_step(model, data)
+        if not (math.isfinite(float(data.qpos.sum())) and math.isfinite(float(data.qvel.sum()))) or data.time <= before:
+            return grip_offset, f"simulation became unstable or reset at {t:.2f} s"
+        self.plan_time += model.opt.timestep
+        return grip_offset, ""
 
     def _run(self) -> None:
         """Step the model so that simulated time keeps pace with the wall clock (times the real-time factor)."""
-        model, data, plan = self.model, self.data, self.plan
+        plan = self.plan
         assert plan is not None
-        dt = model.opt.timestep
+        self._times, self._release_start = plan.t.tolist(), plan.release_start
         grip_offset: float | None = None
         started = time.monotonic()
+        deadline = plan.duration + self.config.duration_margin
         while not self._stop.is_set():
             wall = (time.monotonic() - started) * self.config.real_time_factor
             with self.lock:
                 if self.status != "running":
                     return
                 if time.monotonic() - self.last_heartbeat > self.config.heartbeat_timeout:
-                    self._halt("fault", f"no heartbeat for {self.config.heartbeat_timeout} s: stopped and holding")
+                    self._halt("fault", f"no heartbeat from the lease holder for {self.config.heartbeat_timeout} s: stopped and holding")
                     return
-                while self.plan_time < wall and self.plan_time <= plan.duration:
-                    t = self.plan_time
-                    data.ctrl[self.indices.actuators] = [np.interp(t, plan.t, plan.q[:, j]) for j in range(plan.q.shape[1])]
-                    if t >= plan.release_start and grip_offset is None:
-                        grip_offset = release_offset(plan, gripper_position(self.indices, data))
-                    data.ctrl[self.indices.gripper_actuators] = np.interp(t, plan.t, plan.gripper_command) + (grip_offset or 0.0)
-                    mujoco.mj_step(model, data)
-                    self.plan_time += dt
+                if wall > deadline:
+                    self._halt("fault", f"execution overran the plan's {plan.duration:.2f} s by more than {self.config.duration_margin} s")
+                    return
+            while self.plan_time < wall and self.plan_time <= plan.duration:
+                with self.lock:  # one step at a time: stop and state never wait for a whole catch-up
+                    if self.status != "running":
+                        return
+                    grip_offset, fault = self._step_once(plan, grip_offset)
+                    if fault:
+                        self._halt("fault", fault + ": stopped and holding")
+                        return
+            with self.lock:
+                if self.status != "running":
+                    return
                 if self.plan_time > plan.duration:
-                    self.status, self.detail = "done", f"plan finished after {plan.duration:.2f} s"
-                    self._event("done", self.detail)
+                    self._finish(plan)
                     return
+                self.state()  # refresh the state the network loop reads while this thread steps
             time.sleep(0.002)
 
-
-class _Handler(socketserver.StreamRequestHandler):
-    """One client connection: requests in, replies, states and events out."""
-
-    server: _Server
-
-    def setup(self) -> None:
-        super().setup()
-        self._write_lock = threading.Lock()
-        self._streaming = threading.Event()
-        self._closed = False
-
-    def push(self, message: dict[str, Any]) -> None:
-        if self._closed:
+    def _finish(self, plan: Plan) -> None:
+        gap = np.abs(self.data.qpos[self.indices.qpos] - plan.q[-1])
+        j = int(np.argmax(gap))
+        if gap[j] > self.config.end_tolerance:
+            self._halt("fault", f"plan ended {gap[j]:.3f} from its last sample at joint {self.robot.joint_names[j]} "
+                                f"(tolerance {self.config.end_tolerance}): stopped and holding")
             return
-        try:
-            with self._write_lock:
-                self.connection.sendall(encode(message))
-        except OSError:
-            self._closed = True
-
-    def _stream(self, rate_hz: float) -> None:
-        while self._streaming.is_set() and not self._closed:
-            self.push(self.server.sim.state())
-            time.sleep(1.0 / rate_hz)
-
-    def handle(self) -> None:
-        sim = self.server.sim
-        sim.listeners.append(self)
-        reader = LineReader(self.connection)
-        try:
-            while True:
-                try:
-                    message = reader.read()
-                except (ProtocolError, OSError) as exc:
-                    self.push({"type": "reply", "id": None, "ok": False, "error": str(exc)})
-                    break
-                if message is None:
-                    break
-                with sim.lock:
-                    sim.last_heartbeat = time.monotonic()  # any message from a client shows it is alive
-                reply: dict[str, Any] = {"type": "reply", "id": message.get("id"), "ok": True}
-                try:
-                    reply.update(self._dispatch(message))
-                except (FunrecError, ValueError) as exc:
-                    reply.update(ok=False, error=str(exc))
-                self.push(reply)
-        finally:
-            self._streaming.clear()
-            self._closed = True
-            sim.listeners.remove(self)
-
-    def _dispatch(self, message: dict[str, Any]) -> dict[str, Any]:
-        sim, op = self.server.sim, message.get("op")
-        if op == "hello":
-            robot = sim.robot
-            return {"protocol": PROTOCOL, "robot": robot.name, "joint_names": list(robot.joint_names),
-                    "q_min": robot.q_min.tolist(), "q_max": robot.q_max.tolist(), "v_max": robot.v_max.tolist(),
-                    "a_max": robot.a_max.tolist(), "heartbeat_timeout": sim.config.heartbeat_timeout}
-        if op == "upload":
-            return sim.upload(message)
-        if op == "start":
-            return sim.start(str(message.get("plan_id", "")))
-        if op == "stop":
-            return sim.stop()
-        if op == "heartbeat":
-            return {"status": sim.status}
-        if op == "status":
-            return {"status": sim.status, "detail": sim.detail, "state": sim.state()}
-        if op == "subscribe":
-            rate = float(message.get("rate_hz", 20.0))
-            if not 0.0 < rate <= 200.0:
-                raise ProtocolError(f"rate_hz {rate}: expected 0 < rate <= 200")
-            if not self._streaming.is_set():
-                self._streaming.set()
-                threading.Thread(target=self._stream, args=(rate,), daemon=True).start()
-            return {"rate_hz": rate}
-        raise ProtocolError(f"unknown op {op!r}; ops: hello, upload, start, stop, subscribe, heartbeat, status")
+        self.status, self.detail = "done", f"plan finished after {plan.duration:.2f} s"
+        self.notify({"type": "event", "event": "done", "detail": self.detail, "plan_time": round(self.plan_time, 4)})
 
 
-class _Server(socketserver.ThreadingTCPServer):
-    daemon_threads = True
-    allow_reuse_address = True
-
-    def __init__(self, address: tuple[str, int], sim: SimRobot) -> None:
-        self.sim = sim
-        super().__init__(address, _Handler)
+def _json_number(value: float) -> float | None:
+    value = float(value)
+    return round(value, 6) if math.isfinite(value) else None
 
 
-def make_sim_server(robot: RobotDescription, scene_xml: str | Path | None = None, config: SimServerConfig | None = None) -> _Server:
+def _no_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not JSON")
+
+
+def make_sim_server(robot: RobotDescription, scene_xml: str | Path | None = None, config: SimServerConfig | None = None) -> Any:
     """A bound (not yet serving) endpoint; ``server.server_address`` is where it listens. Call
     ``serve_forever()`` (e.g. in a thread) and ``shutdown()`` / ``server_close()`` to end it."""
+    from funrec_robot.endpoint import Endpoint
+
     config = SimServerConfig() if config is None else config
-    return _Server((config.host, config.port), SimRobot(robot, scene_xml, config))
+    return Endpoint(SimRobot(robot, scene_xml, config), config)
 
 
 __all__ = ["SimRobot", "SimServerConfig", "make_sim_server"]

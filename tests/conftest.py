@@ -11,6 +11,14 @@ if TYPE_CHECKING:
     from tests.helpers.stage_inputs import EstimatedRun
 
 
+@pytest.fixture(autouse=True, scope="session")
+def _private_config_home(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """Keys, tokens and certificates of funrec-robot go to a throwaway $XDG_CONFIG_HOME, never the user's."""
+    import os
+
+    os.environ["XDG_CONFIG_HOME"] = str(tmp_path_factory.mktemp("xdg_config"))
+
+
 @pytest.fixture(scope="session")
 def tiny_capture(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A tiny generated capture (24 frames, 80x60, one cabinet door opened, hand masks) with

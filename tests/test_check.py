@@ -18,7 +18,7 @@ from funrec_robot.check import CRITERIA, CheckConfig, check_plan
 from funrec_robot.cli import EXIT_CHECK_FAILED, main
 from funrec_robot.controller import Admittance, AdmittanceConfig, ServoModel
 from funrec_robot.plan import plan_interaction
-from funrec_robot.plan_file import read_plan
+from funrec_robot.plan_file import read_plan, sha256_file
 from funrec_robot.task import ArticulationTask
 from funrec_robot.task_sources import task_from_ground_truth
 from tests.helpers.robot_scenes import PRISMATIC_CASE, REVOLUTE_CASE, write_gt_scene
@@ -53,9 +53,16 @@ def test_revolute_plan_and_check_pass_through_the_cli(scenes, tmp_path, capsys) 
     assert main(["check", str(plan_path), "--gt", str(gt), "--video", str(video), "--video-fps", "1"]) == 0
     out = capsys.readouterr().out
     assert "PASS" in out and video.stat().st_size > 0
-    report = json.loads(plan_path.with_suffix(".check.json").read_text())
+    record = json.loads(plan_path.with_suffix(".check.json").read_text())
+    report, attested = record["report"], record["attested"]
     assert report["passed"] and report["failed_criteria"] == []
     assert report["target_error"] < np.deg2rad(5.0) and report["peak_handle_force_N"] <= 50.0
+    # the signed record attests the plan, robot and scene by hash and every criterion with threshold and value
+    assert attested["plan_sha256"] == sha256_file(plan_path) and attested["robot"]["sha256"] == sha256_file(default_robot_path())
+    assert attested["scene"]["file"] == str((gt / "scene.xml").resolve()) and len(attested["scene"]["folder_sha256"]) == 64
+    force = next(c for c in attested["criteria"] if c["name"] == "handle_force")
+    assert force["threshold"] == 50.0 and force["measured"] == round(report["peak_handle_force_N"], 6) and force["passed"]
+    assert {c["name"] for c in attested["criteria"]} == set(CRITERIA) and record["signature"]["algorithm"] == "ed25519"
     assert read_plan(plan_path).provenance["plan_time_s"] < 10.0
 
 
@@ -109,7 +116,7 @@ def test_cli_check_exits_3_on_failure(robot, scenes, tmp_path) -> None:
     assert main(["plan", "--scene", str(gt), "--to", "0.3", "-o", str(plan_path)]) == 0
     # Judged against an impossible force bound, the same plan fails.
     assert main(["check", str(plan_path), "--max-handle-force", "0.01"]) == EXIT_CHECK_FAILED
-    report = json.loads(plan_path.with_suffix(".check.json").read_text())
+    report = json.loads(plan_path.with_suffix(".check.json").read_text())["report"]
     assert "handle_force" in report["failed_criteria"]
 
 
@@ -226,3 +233,28 @@ def test_fetch_plans_and_passes_a_revolute_case(scenes) -> None:
     gt = scenes[REVOLUTE_CASE]
     report = check_plan(_plan(fetch, gt), fetch, gt / "scene.xml")
     assert report.passed, report.failures
+
+
+@pytest.mark.slow
+def test_the_legitimate_path_runs_with_default_settings(scenes, tmp_path, capsys) -> None:
+    """`check plan.json`, `serve-sim &`, `send plan.json --to 127.0.0.1:PORT`: no flags, keys made on first use
+    (about the plan's duration in real time plus planning and checking: slow)."""
+    import threading
+
+    from funrec_robot.sim_server import SimServerConfig, make_sim_server
+
+    gt = scenes[REVOLUTE_CASE]
+    plan_path = tmp_path / "plan.json"
+    assert main(["plan", "--scene", str(gt), "--part", "part_0", "--to", "open", "-o", str(plan_path)]) == 0
+    assert main(["check", str(plan_path)]) == 0
+    server = make_sim_server(load_robot(default_robot_path()), None, SimServerConfig(port=0))
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        capsys.readouterr()
+        assert main(["send", str(plan_path), "--to", f"127.0.0.1:{server.server_address[1]}"]) == 0
+        assert capsys.readouterr().out.startswith("done: plan finished after")
+    finally:
+        server.shutdown()
+        thread.join(5.0)
+        server.server_close()

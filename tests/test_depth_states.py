@@ -136,7 +136,7 @@ def test_depth_cost_tells_a_turning_door_from_a_slide() -> None:
 def test_a_plain_door_is_proposed_from_depth_alone() -> None:
     """No tracks at all: the door leaf's surface leaves the first frame's view as it turns, and of
     the joints hypothesised from that surface the hinge explains the depth (funrec.parts.depth_proposal)."""
-    from funrec.parts.depth_proposal import propose_part, proposal_tracks
+    from funrec.parts.depth_proposal import proposal_tracks, propose_part
 
     F = 30
     true = np.deg2rad(70.0) * np.clip((np.arange(F) - 3) / 22.0, 0.0, 1.0)

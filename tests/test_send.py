@@ -12,8 +12,9 @@ import pytest
 
 from funrec.errors import FunrecError, PlanningError
 from funrec_robot import default_robot_path, load_robot
-from funrec_robot.check_record import CHECK_FORMAT, require_passing_record
+from funrec_robot.check_record import require_passing_record, write_signed_record
 from funrec_robot.driver import TcpDriver, send_plan
+from funrec_robot.keys import TrustError
 from funrec_robot.plan_file import Plan, Segment, read_plan, sha256_file, write_plan
 from funrec_robot.protocol import ProtocolError, parse_address, validate_plan
 from funrec_robot.ros2_driver import gripper_switches, trajectory_points
@@ -47,22 +48,46 @@ def _plan(robot, duration: float = 1.0, swing: float = 0.2, speed_scale: float =
                 0.0, 0.5, np.eye(4), np.zeros(3), 0, np.zeros((1, 3)), {"robot_file": str(robot.yaml_path)})
 
 
-def _checked(path: Path, plan: Plan, passed: bool = True) -> Path:
-    """plan.json with a check record of its bytes (a fixture record: these tests are of sending, not checking)."""
+def _attested(path: Path, passed: bool = True, **settings) -> dict:
+    """What a passing `funrec-robot check` attests of the plan at ``path`` (a fixture: these tests are of
+    sending, not checking), with check settings overridden by ``settings``."""
+    from funrec_robot.check import CRITERIA, CheckConfig
+    from funrec_robot.check_record import _settings
+
+    return {
+        "plan_sha256": sha256_file(path),
+        "plan_file": str(path),
+        "robot": {"file": str(default_robot_path()), "sha256": sha256_file(default_robot_path())},
+        "scene": {"file": "scene.xml", "folder_sha256": "0" * 64},
+        "joint": "part_0",
+        "passed": passed,
+        "criteria": [{"name": c, "threshold": 1.0, "unit": "", "measured": 0.0, "passed": passed or c != "target"} for c in CRITERIA],
+        "settings": {**_settings(CheckConfig()), **settings},
+        "funrec_version": "test",
+        "checked_at": "2026-11-26T00:00:00+00:00",
+    }
+
+
+def _checked(path: Path, plan: Plan, passed: bool = True, key=None, **settings) -> Path:
+    """plan.json with a signed check record of its bytes (this user's key unless ``key``)."""
     write_plan(path, plan)
-    record = {"format": CHECK_FORMAT, "plan_sha256": sha256_file(path), "passed": passed, "failed_criteria": [] if passed else ["target"]}
-    path.with_suffix(".check.json").write_text(json.dumps(record))
+    write_signed_record(_attested(path, passed, **settings), path.with_suffix(".check.json"), key)
     return path
+
+
+def _record(path: Path) -> dict:
+    return json.loads(path.with_suffix(".check.json").read_text())
 
 
 @pytest.fixture()
 def endpoint(robot):
-    server = make_sim_server(robot, None, SimServerConfig(port=0, heartbeat_timeout=0.3))
+    server = make_sim_server(robot, None, SimServerConfig(port=0, heartbeat_timeout=0.5))
     thread = threading.Thread(target=server.serve_forever, daemon=True)
     thread.start()
     host, port = server.server_address[:2]
     yield server, f"{host}:{port}"
     server.shutdown()
+    thread.join(5.0)
     server.server_close()
 
 
@@ -73,10 +98,10 @@ def test_send_refuses_unchecked_changed_and_failed_plans(robot, tmp_path) -> Non
         send_plan(path, "127.0.0.1:1")
     _checked(path, _plan(robot))
     write_plan(path, _plan(robot, swing=0.3))  # changed after its check
-    with pytest.raises(PlanningError, match=r"check record .* is of another plan"):
+    with pytest.raises(TrustError, match=r"check record .* is of another plan .*edited after its check"):
         require_passing_record(path)
     _checked(path, _plan(robot), passed=False)
-    with pytest.raises(PlanningError, match=r"its check failed \(target"):
+    with pytest.raises(TrustError, match=r"the check failed \(target\)"):
         send_plan(path, "127.0.0.1:1")
 
 
@@ -104,15 +129,18 @@ def test_serve_sim_validates_against_its_own_limits_and_stops_without_heartbeat(
     assert validate_plan(fast, robot)
     path = _checked(tmp_path / "fast.json", fast)
     driver = TcpDriver(address)
+    driver.hello()
     with pytest.raises(ProtocolError, match=r"upload: refused: arm_joint1: speed .* > limit"):
-        driver.upload(path.read_text(), json.loads(path.with_suffix(".check.json").read_text()))
-    with pytest.raises(ProtocolError, match="no passing check record of this exact plan"):
-        driver.upload(path.read_text(), {"plan_sha256": "0" * 64, "passed": True})
+        driver.upload(path.read_text(), _record(path))
+    with pytest.raises(ProtocolError, match="refused: .*not a signed check record"):
+        driver.upload(path.read_text(), {"format": "funrec-check/1", "plan_sha256": sha256_file(path), "passed": True})
     slow = _checked(tmp_path / "slow.json", _plan(robot, duration=3.0))
-    plan_id = driver.upload(slow.read_text(), json.loads(slow.with_suffix(".check.json").read_text()))
+    plan_id = driver.upload(slow.read_text(), _record(slow))
     driver.start(plan_id)
     started = time.monotonic()
-    event = driver.wait_event(2.0)  # no heartbeats sent: the 0.3 s watchdog must fire well before the 3 s plan ends
+    # no heartbeats sent: the 0.5 s watchdog must fire well before the 3 s plan ends (the fixture's timeout is
+    # not tighter: a busy machine may starve a well-behaved sender for 0.3 s)
+    event = driver.wait_event(2.0)
     assert event is not None and event["event"] == "fault" and "no heartbeat" in event["detail"]
     assert time.monotonic() - started < 1.5
     assert driver.request("status")["status"] == "fault"

@@ -19,6 +19,7 @@ from pathlib import Path
 
 from funrec.bench.scheduler import Progress, last_log_line, run_funrec_child, run_jobs
 from funrec.errors import FunrecError
+from funrec.formats.staged_folder import refuse_output_over_input
 
 log = logging.getLogger(__name__)
 
@@ -210,6 +211,7 @@ def run_batch(
     Raises:
         FunrecError: no captures, or Ray requested but not installed. A failing capture is a row.
     """
+    refuse_output_over_input(out_dir, dataset_dir)
     captures = find_captures(dataset_dir)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -37,6 +37,7 @@ from funrec.bench.report import (
 from funrec.bench.scheduler import Progress, last_log_line, run_funrec_child, run_jobs
 from funrec.errors import FunrecError
 from funrec.formats.capture import load_capture
+from funrec.formats.staged_folder import refuse_output_over_input
 
 LOGGER = logging.getLogger(__name__)
 
@@ -280,6 +281,7 @@ def run_bench(
     """
     ablations = _ablations(config)
     suite_dir, out_dir = Path(suite_dir), Path(out_dir)
+    refuse_output_over_input(out_dir, suite_dir)
     date = datetime.now(timezone.utc).isoformat(timespec="seconds")
     captures = _prepare_suite(suite_dir, config)
     ablation_captures = _ablation_captures(captures, config)

@@ -11,6 +11,7 @@ from pathlib import Path
 from funrec.convert.config import FORMAT_NAMES, ConvertConfig
 from funrec.convert.report import ConversionReport, DroppedFrame, TimestampGap
 from funrec.errors import CaptureError
+from funrec.formats.staged_folder import refuse_output_over_input
 
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".m4v", ".webm", ".mpg", ".mpeg", ".wmv")
 """Plain video files: colour only, refused (FunREC needs depth)."""
@@ -94,6 +95,7 @@ def convert(source: str | Path, out_dir: str | Path, config: ConvertConfig = Con
         FunrecError: a missing optional dependency (naming the pip package) or an existing output.
     """
     source = Path(source)
+    refuse_output_over_input(out_dir, source)
     name = detect_format(source) if config.format == "auto" else config.format
     if source.is_file() and source.suffix.lower() in VIDEO_SUFFIXES:
         detect_format(source)  # refuses plain videos whatever the format says

@@ -4,7 +4,10 @@ hull), each thick enough for a simulator's contact solver. The only module that 
 from __future__ import annotations
 
 import logging
+import threading
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any, TypeVar
 
 import numpy as np
 import trimesh
@@ -12,6 +15,8 @@ from scipy.spatial import ConvexHull
 
 from funrec.errors import ExportError
 from funrec.typed import FloatArray
+
+T = TypeVar("T")
 
 log = logging.getLogger(__name__)
 
@@ -183,6 +188,27 @@ def _simplified(mesh: trimesh.Trimesh, config: CollisionConfig) -> trimesh.Trime
     return mesh
 
 
+def interruptible(function: Callable[..., T], *args: Any, **kwargs: Any) -> T:
+    """``function(*args, **kwargs)`` in a worker thread, so that Ctrl-C acts within 0.1 s even while a long
+    native call (coacd releases the GIL) runs; on an interrupt the worker is left to finish in the background
+    (a daemon thread: it ends with the process)."""
+    outcome: dict[str, Any] = {}
+
+    def run() -> None:
+        try:
+            outcome["value"] = function(*args, **kwargs)
+        except BaseException as exc:  # handed to the caller's thread
+            outcome["error"] = exc
+
+    worker = threading.Thread(target=run, name="funrec-native", daemon=True)
+    worker.start()
+    while worker.is_alive():
+        worker.join(0.1)
+    if "error" in outcome:
+        raise outcome["error"]
+    return outcome["value"]
+
+
 def _coacd_point_sets(mesh: trimesh.Trimesh, config: CollisionConfig, name: str) -> list[FloatArray]:
     try:
         import coacd
@@ -193,7 +219,8 @@ def _coacd_point_sets(mesh: trimesh.Trimesh, config: CollisionConfig, name: str)
         ) from None
     coacd.set_log_level("error")
     source = _simplified(mesh, config)
-    pieces = coacd.run_coacd(
+    pieces = interruptible(
+        coacd.run_coacd,
         coacd.Mesh(np.asarray(source.vertices, dtype=np.float64), np.asarray(source.faces, dtype=np.int32)),
         threshold=config.coacd_threshold,
         max_convex_hull=config.coacd_max_pieces,

@@ -21,6 +21,7 @@ from PIL import Image, UnidentifiedImageError
 
 from funrec.errors import CaptureError
 from funrec.formats.camera_poses import read_camera_poses
+from funrec.formats.capture_usable import intrinsics_problem
 from funrec.geometry.camera import PinholeIntrinsics
 from funrec.typed import BoolArray, FloatArray, UInt8Array
 
@@ -83,7 +84,11 @@ def read_intrinsics(path: str | Path) -> CaptureIntrinsics:
     for key in ("fx", "fy", "depth_scale", "fps"):
         if values[key] <= 0:
             raise CaptureError(path, f"{key} must be positive, got {values[key]!r}")
-    return CaptureIntrinsics(**{k: (v if k in ("width", "height") else float(v)) for k, v in values.items()})
+    intrinsics = CaptureIntrinsics(**{k: (v if k in ("width", "height") else float(v)) for k, v in values.items()})
+    problem = intrinsics_problem(intrinsics)
+    if problem is not None:
+        raise CaptureError(path, f"implausible intrinsics: {problem}")
+    return intrinsics
 
 
 def _frame_files(folder: Path, suffixes: tuple[str, ...]) -> dict[int, Path]:
@@ -107,7 +112,7 @@ def _check_header(path: Path, frame: int, size: tuple[int, int], modes: tuple[st
     try:
         with Image.open(path) as image:
             mode, image_size = image.mode, image.size
-    except (UnidentifiedImageError, OSError) as exc:
+    except (UnidentifiedImageError, OSError, Image.DecompressionBombError) as exc:
         raise CaptureError(path, f"unreadable image ({exc})", frame) from None
     if mode not in modes:
         raise CaptureError(path, f"{what} has pixel mode {mode}, expected one of {list(modes)}", frame)

@@ -14,6 +14,21 @@ from pathlib import Path
 from funrec.errors import FunrecError
 
 
+def refuse_output_over_input(out_path: str | Path, *inputs: str | Path) -> None:
+    """Refuse an output that is an input, lies inside one, or contains one: replacing it would delete the input.
+
+    Raises:
+        FunrecError: naming both paths.
+    """
+    out = Path(out_path).resolve()
+    for source in inputs:
+        source = Path(source).resolve()
+        if out == source or source in out.parents or out in source.parents:
+            relation = "is" if out == source else ("is inside" if source in out.parents else "contains")
+            raise FunrecError(f"{out_path}: the output {relation} the input {source}; writing it would destroy the input, "
+                              "choose another -o")
+
+
 def stage_folder(out_dir: Path, overwrite: bool) -> Path:
     """A new empty ``.NAME.partial-*`` folder beside ``out_dir`` to write into.
 
@@ -36,7 +51,10 @@ def publish_folder(staged: Path, out_dir: Path) -> None:
         out_dir.rename(old)
     staged.rename(out_dir)
     if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
+        if old.is_dir() and not old.is_symlink():
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            old.unlink(missing_ok=True)  # a file was replaced by the folder: no .NAME.old-* left behind
 
 
 def discard_folder(staged: Path) -> None:
@@ -44,4 +62,4 @@ def discard_folder(staged: Path) -> None:
     shutil.rmtree(staged, ignore_errors=True)
 
 
-__all__ = ["discard_folder", "publish_folder", "stage_folder"]
+__all__ = ["discard_folder", "publish_folder", "refuse_output_over_input", "stage_folder"]
