@@ -1,10 +1,14 @@
-"""Tests of funrec.camera.features.sample_depth: the robust window depth against a direct nanmedian."""
+"""Tests of funrec.camera.features: sample_depth (the robust window depth against a direct nanmedian)
+and rigid_ransac (per-correspondence tolerances, outliers)."""
 
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
-from funrec.camera.features import sample_depth
+from funrec.camera.features import rigid_ransac, sample_depth
+from funrec.geometry.fitting import RigidFit
+from funrec.geometry.transforms import make_transform
 
 
 def _reference(depth_m: np.ndarray, uv: np.ndarray, window_px: int, max_spread: float) -> np.ndarray:
@@ -36,3 +40,24 @@ def test_sample_depth_is_the_window_nanmedian() -> None:
     # Exact: the same readings, the median of an even count as the mean of the two middle ones.
     np.testing.assert_array_equal(got, want)
     assert np.isfinite(got).sum() > 100 and np.isnan(got).sum() > 50  # both outcomes exercised
+
+
+def test_rigid_ransac_per_point_tolerances_and_outliers() -> None:
+    """Points 1-4 m away with noise growing with range (as depth noise does), 30 % outliers: the
+    camera RANSAC recovers the motion and returns the shared RigidFit with its inlier rms."""
+    rng = np.random.default_rng(0)
+    T_dst_src = make_transform(Rotation.from_rotvec([0.02, -0.05, 0.01]).as_matrix(), [0.05, -0.02, 0.03])
+    p_src = np.column_stack([rng.uniform(-1, 1, 300), rng.uniform(-0.8, 0.8, 300), rng.uniform(1, 4, 300)])
+    sigma = 0.001 * p_src[:, 2] ** 2
+    p_dst = p_src @ T_dst_src[:3, :3].T + T_dst_src[:3, 3] + rng.normal(size=(300, 3)) * sigma[:, None]
+    outliers = rng.random(300) < 0.3
+    p_dst[outliers] += rng.uniform(-0.3, 0.3, (int(outliers.sum()), 3))
+    fit = rigid_ransac(p_src, p_dst, 3 * np.sqrt(3) * sigma, np.ones(300), rng, hypotheses=100)
+    assert isinstance(fit, RigidFit)
+    # ~200 inliers, a few mm of noise over a 1-4 m lever: errors ~1e-4 rad and ~1 mm; bounds ~5x.
+    assert Rotation.from_matrix(fit.T_dst_src[:3, :3] @ T_dst_src[:3, :3].T).magnitude() < 1e-3
+    assert np.linalg.norm(fit.T_dst_src[:3, 3] - T_dst_src[:3, 3]) < 5e-3
+    assert np.mean(fit.inliers[outliers]) < 0.05 and np.mean(fit.inliers[~outliers]) > 0.8
+    residual = np.linalg.norm(p_src @ fit.T_dst_src[:3, :3].T + fit.T_dst_src[:3, 3] - p_dst, axis=1)
+    assert np.isclose(fit.rms_m, np.sqrt(np.mean(residual[fit.inliers] ** 2)), rtol=1e-12, atol=0.0)
+    assert rigid_ransac(p_src[:2], p_dst[:2], sigma[:2], np.ones(2), rng, hypotheses=10) is None

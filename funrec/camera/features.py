@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from funrec.geometry.fitting import RigidFit, fit_rigid
 from funrec.typed import BoolArray, FloatArray, UInt8Array
 
 ORB_DESCRIPTOR_BYTES = 32
@@ -241,44 +242,6 @@ class DepthNoiseModel:
         return np.sqrt(axial**2 + lateral**2)
 
 
-def kabsch(p_src: FloatArray, p_dst: FloatArray, weights: FloatArray) -> FloatArray:
-    """Weighted least-squares rigid transform (Kabsch/Umeyama without scale).
-
-    Args:
-        p_src, p_dst: (..., N, 3) corresponding points in the source and destination frames.
-        weights: (..., N) non-negative weights.
-
-    Returns:
-        (..., 4, 4) ``T_dst_src`` minimising sum w |R p_src + t - p_dst|^2.
-    """
-    w = weights / np.maximum(weights.sum(axis=-1, keepdims=True), 1e-12)
-    c_src = np.einsum("...n,...ni->...i", w, p_src)
-    c_dst = np.einsum("...n,...ni->...i", w, p_dst)
-    H = np.einsum("...n,...ni,...nj->...ij", w, p_src - c_src[..., None, :], p_dst - c_dst[..., None, :])
-    U, _, Vt = np.linalg.svd(H)
-    d = np.sign(np.linalg.det(np.swapaxes(Vt, -1, -2) @ np.swapaxes(U, -1, -2)))
-    D = np.zeros(H.shape)
-    D[..., 0, 0] = 1.0
-    D[..., 1, 1] = 1.0
-    D[..., 2, 2] = d
-    R = np.swapaxes(Vt, -1, -2) @ D @ np.swapaxes(U, -1, -2)
-    T = np.zeros((*H.shape[:-2], 4, 4))
-    T[..., :3, :3] = R
-    T[..., :3, 3] = c_dst - np.einsum("...ij,...j->...i", R, c_src)
-    T[..., 3, 3] = 1.0
-    return T
-
-
-@dataclass(frozen=True)
-class RigidFit:
-    """Result of :func:`rigid_ransac`."""
-
-    T_dst_src: FloatArray
-    """(4, 4) transform mapping source points to the destination frame."""
-    inliers: BoolArray
-    """(N,) correspondences within their tolerance under ``T_dst_src``."""
-
-
 def _residuals(T: FloatArray, p_src: FloatArray, p_dst: FloatArray) -> FloatArray:
     """(..., N) distances |T p_src - p_dst| for (..., 4, 4) transforms."""
     # matmul broadcasts over the hypotheses ~5x faster than the equivalent einsum.
@@ -306,6 +269,14 @@ def rigid_ransac(
     once with numpy. The score is truncated-quadratic (MSAC), so the largest consistent
     rigid set wins and points on an independently moving hand do not drag the result.
 
+    The variant for camera tracking between RGB-D frames; the parts stages use
+    :func:`funrec.geometry.fitting.ransac_rigid` (one global threshold, samples drawn by
+    weight). Here samples are uniform and checked before fitting (collinear triples and
+    triples whose side lengths disagree are dropped, which matters with the few dozen
+    matches of a fast camera), a prior motion competes as a hypothesis, and the per-point
+    tolerances shrink once to the noise actually observed. Both fit with the one weighted
+    Kabsch, :func:`funrec.geometry.fitting.fit_rigid`.
+
     Args:
         p_src, p_dst: (N, 3) corresponding points, metres, in the source and destination frames.
         tolerance_m: (N,) inlier distance of each correspondence, metres.
@@ -318,7 +289,8 @@ def rigid_ransac(
             this fraction of ``tolerance_m``.
 
     Returns:
-        The best fit, or None when fewer than 3 correspondences are given.
+        The best fit (inliers under the final, shrunk tolerances), or None when fewer than 3
+        correspondences are given.
     """
     N = len(p_src)
     if N < 3:
@@ -332,20 +304,21 @@ def rigid_ransac(
     side_tol = tolerance_m[samples] + tolerance_m[samples[:, [1, 2, 0]]]
     good = (area > _COLLINEAR_MIN_AREA_M2) & np.all(np.abs(side_src - side_dst) < side_tol, axis=1)
     samples = samples[good]
-    candidates = [kabsch(p_src[samples], p_dst[samples], np.ones(samples.shape))] if len(samples) else []
+    candidates = [fit_rigid(p_src[samples], p_dst[samples], np.ones(samples.shape))] if len(samples) else []
     if prior_T_dst_src is not None:
         candidates.append(prior_T_dst_src[None])
     if not candidates:
-        return RigidFit(np.eye(4), np.zeros(N, dtype=bool))
+        return RigidFit(np.eye(4), np.zeros(N, dtype=bool), float("inf"))
     T_all = np.concatenate(candidates)
     residual = _residuals(T_all, p_src, p_dst)
     score = np.sum(weights * np.maximum(0.0, 1.0 - (residual / tolerance_m) ** 2), axis=1)
     best = int(np.argmax(score))
-    T, inliers = T_all[best], residual[best] < tolerance_m
+    T, residual = T_all[best], residual[best]
+    inliers = residual < tolerance_m
     for round_index in range(refinements):
         if inliers.sum() < 3:
             break
-        T = kabsch(p_src[inliers], p_dst[inliers], weights[inliers] / tolerance_m[inliers] ** 2)
+        T = fit_rigid(p_src[inliers], p_dst[inliers], weights[inliers] / tolerance_m[inliers] ** 2)
         residual = _residuals(T, p_src, p_dst)
         inliers = residual < tolerance_m
         if round_index == 0 and inliers.sum() >= 3:
@@ -355,7 +328,8 @@ def rigid_ransac(
             observed = np.median(residual[inliers] / tolerance_m[inliers]) / _MEDIAN_RATIO_AT_UNIT_TOLERANCE
             tolerance_m = tolerance_m * float(np.clip(observed, min_scale, 1.0))
             inliers = residual < tolerance_m
-    return RigidFit(T, inliers)
+    rms_m = float(np.sqrt(np.mean(residual[inliers] ** 2))) if inliers.any() else float("inf")
+    return RigidFit(T, inliers, rms_m)
 
 
 def refine_rigid(
@@ -468,11 +442,9 @@ def match_descriptors(
 
 __all__ = [
     "DepthNoiseModel",
-    "RigidFit",
     "depth_edges",
     "detect_corners",
     "information_matrix",
-    "kabsch",
     "lift",
     "mask_at",
     "match_descriptors",

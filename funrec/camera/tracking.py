@@ -19,7 +19,6 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from funrec.camera.features import (
     DepthNoiseModel,
-    RigidFit,
     detect_corners,
     information_matrix,
     lift,
@@ -34,6 +33,7 @@ from funrec.camera.features import (
 from funrec.camera.pose_graph import PoseGraphEdge, optimise_pose_graph
 from funrec.errors import ReconstructionError
 from funrec.formats.capture import Capture
+from funrec.geometry.fitting import RigidFit
 from funrec.geometry.transforms import invert_transform
 from funrec.typed import BoolArray, FloatArray, IntArray, UInt8Array
 

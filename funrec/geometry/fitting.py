@@ -115,8 +115,10 @@ def fit_circles(
 
 
 def fit_rigid(p_src: npt.ArrayLike, p_dst: npt.ArrayLike, weights: npt.ArrayLike) -> FloatArray:
-    """Weighted Kabsch: the rigid transform minimising sum w |T p_src - p_dst|^2.
+    """Weighted Kabsch (Umeyama without scale): the rigid transform minimising sum w |T p_src - p_dst|^2.
 
+    The one Kabsch solver of the package: both RANSACs (:func:`ransac_rigid` here and
+    :func:`funrec.camera.features.rigid_ransac`) fit their hypotheses and refits with it.
     Batched over leading axes; ``Rotation.align_vectors`` solves one problem per call, and
     RANSAC needs hundreds of hypotheses at once.
 
@@ -148,14 +150,15 @@ def fit_rigid(p_src: npt.ArrayLike, p_dst: npt.ArrayLike, weights: npt.ArrayLike
 
 @dataclass(frozen=True)
 class RigidFit:
-    """Result of :func:`ransac_rigid`."""
+    """A robust rigid fit: the result of :func:`ransac_rigid` and of
+    :func:`funrec.camera.features.rigid_ransac`."""
 
     T_dst_src: FloatArray
     """(4, 4) rigid transform with ``p_dst ~ T_dst_src p_src``."""
     inliers: BoolArray
-    """(n,) correspondences within the inlier threshold of the final transform."""
+    """(n,) correspondences within their inlier threshold under ``T_dst_src``."""
     rms_m: float
-    """Root-mean-square inlier residual |T p_src - p_dst|, metres."""
+    """Root-mean-square inlier residual |T p_src - p_dst|, metres; inf without inliers."""
 
 
 def ransac_rigid(
@@ -173,6 +176,12 @@ def ransac_rigid(
     the weighted truncated quadratic (MSAC), and the best is refitted by weighted Kabsch on its
     inliers. Written with numpy because Open3D's correspondence RANSAC takes no weights and
     evaluates hypotheses one at a time; here all hypotheses are scored in one batched product.
+
+    This is the variant for 3D point tracks (parts stages): one global inlier threshold, samples
+    drawn by weight, a fixed iteration count. Camera tracking uses
+    :func:`funrec.camera.features.rigid_ransac` instead, whose tolerance is per correspondence
+    (depth noise grows with range) and shrinks to the observed noise, and which rejects
+    degenerate samples before fitting.
 
     Args:
         p_src: (n, 3) source points; p_dst: (n, 3) targets; n >= 3.
