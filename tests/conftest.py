@@ -57,3 +57,28 @@ def estimated_run(request: pytest.FixtureRequest) -> EstimatedRun:
     from tests.helpers.stage_inputs import estimate_run, smoke_sequence
 
     return estimate_run(request.param, smoke_sequence(request.config.cache.mkdir("funrec_synth"), request.param))
+
+
+@pytest.fixture(scope="module")
+def robot():
+    """The default robot (funrec_robot.default_robot_path); modules that test another define their own."""
+    from funrec_robot import default_robot_path, load_robot
+
+    return load_robot(default_robot_path())
+
+
+@pytest.fixture()
+def endpoint(robot):
+    """serve-sim for ``robot`` on a free localhost port, in a thread: (server, "host:port")."""
+    import threading
+
+    from funrec_robot.sim_server import SimServerConfig, make_sim_server
+
+    server = make_sim_server(robot, None, SimServerConfig(port=0, heartbeat_timeout=0.5))
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    host, port = server.server_address[:2]
+    yield server, f"{host}:{port}"
+    server.shutdown()
+    thread.join(5.0)
+    server.server_close()

@@ -87,18 +87,17 @@ def _run_plan_measuring_stop(address: str, path: Path, duration: float) -> tuple
 
 def test_fuzzed_messages_each_get_a_reply_while_a_plan_runs(tmp_path) -> None:
     """2000 seeded hostile lines on an authenticated connection, while a well-behaved client runs a 2 s plan."""
-    from test_send import _checked, _plan
-
     from funrec_robot import default_robot_path, load_robot
     from funrec_robot.driver import TcpDriver
     from funrec_robot.sim_server import SimServerConfig, make_sim_server
+    from tests.helpers.robot_plans import checked_plan, swing_plan
 
     robot = load_robot(default_robot_path())
     server = make_sim_server(robot, None, SimServerConfig(port=0))
     thread = threading.Thread(target=server.serve_forever, daemon=True)
     thread.start()
     address = f"127.0.0.1:{server.server_address[1]}"
-    path = _checked(tmp_path / "plan.json", _plan(robot, duration=2.0, swing=0.1))
+    path = checked_plan(tmp_path / "plan.json", swing_plan(robot, duration=2.0, swing=0.1))
     rss_before = _rss_mb(os.getpid())
     fuzzer = TcpDriver(address)
     rng = random.Random(15)
@@ -156,18 +155,17 @@ def test_a_vanished_sender_stops_the_robot(tmp_path, how) -> None:
     and silent): the robot stops and holds, at once or after the 1 s heartbeat timeout."""
     import signal
 
-    from test_send import _checked, _plan
-
     from funrec_robot import default_robot_path, load_robot
     from funrec_robot.driver import TcpDriver
     from funrec_robot.sim_server import SimServerConfig, make_sim_server
+    from tests.helpers.robot_plans import checked_plan, swing_plan
 
     robot = load_robot(default_robot_path())
     server = make_sim_server(robot, None, SimServerConfig(port=0))
     thread = threading.Thread(target=server.serve_forever, daemon=True)
     thread.start()
     address = f"127.0.0.1:{server.server_address[1]}"
-    path = _checked(tmp_path / "plan.json", _plan(robot, duration=8.0, swing=0.2))
+    path = checked_plan(tmp_path / "plan.json", swing_plan(robot, duration=8.0, swing=0.2))
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
     sender = subprocess.Popen([sys.executable, "-c", _SENDER, address, str(path)], stdout=subprocess.PIPE, text=True, env=env)
     observer = TcpDriver(address)
@@ -276,12 +274,11 @@ def _flood(address: str, seconds: float, out: Path) -> None:
 def test_a_flood_on_localhost_does_not_starve_a_well_behaved_client(tmp_path) -> None:
     """serve-sim in its own process; a flooding process (short connections, non-reading subscribers, endless
     half-lines, unauthenticated garbage) for the whole of a well-behaved client's 5 s plan and its stop."""
-    from test_send import _checked, _plan
-
     from funrec_robot import default_robot_path, load_robot
+    from tests.helpers.robot_plans import checked_plan, swing_plan
 
     robot = load_robot(default_robot_path())
-    path = _checked(tmp_path / "plan.json", _plan(robot, duration=5.0, swing=0.2))
+    path = checked_plan(tmp_path / "plan.json", swing_plan(robot, duration=5.0, swing=0.2))
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
     server = subprocess.Popen([sys.executable, "-c", "from funrec_robot.cli import main; main()", "serve-sim", "--port", "0"],
                               stdout=subprocess.PIPE, text=True, env=env)

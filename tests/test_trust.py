@@ -15,7 +15,6 @@ import time
 
 import numpy as np
 import pytest
-from test_send import DT, _checked, _plan, _record, endpoint, robot  # noqa: F401 (fixtures)
 
 from funrec.errors import FunrecError
 from funrec_robot.driver import TcpDriver, send_plan
@@ -23,6 +22,7 @@ from funrec_robot.keys import SigningKey, TrustError, config_dir, load_signing_k
 from funrec_robot.plan_file import sha256_file, write_plan
 from funrec_robot.protocol import ProtocolError
 from funrec_robot.sim_server import SimServerConfig
+from tests.helpers.robot_plans import DT, checked_plan, read_check_record, swing_plan
 
 
 def _other_key() -> SigningKey:
@@ -45,63 +45,63 @@ def test_keys_are_created_on_first_use_private(tmp_path, monkeypatch) -> None:
         load_signing_key()
 
 
-def test_send_refuses_forged_untrusted_loosened_and_edited_records(robot, tmp_path) -> None:  # noqa: F811
+def test_send_refuses_forged_untrusted_loosened_and_edited_records(robot, tmp_path) -> None:
     path = tmp_path / "plan.json"
-    write_plan(path, _plan(robot))
+    write_plan(path, swing_plan(robot))
     # the issue's forgery: a hand-written record of the plan's sha256
     path.with_suffix(".check.json").write_text(json.dumps({"format": "funrec-check/1", "plan_sha256": sha256_file(path), "passed": True}))
     with pytest.raises(TrustError, match=r"not a signed check record \(format 'funrec-check/1'"):
         send_plan(path, "127.0.0.1:1")
     # a genuine failed record edited to pass
-    _checked(path, _plan(robot), passed=False)
-    record = _record(path)
+    checked_plan(path, swing_plan(robot), passed=False)
+    record = read_check_record(path)
     record["attested"]["passed"] = True
     for row in record["attested"]["criteria"]:
         row["passed"] = True
     path.with_suffix(".check.json").write_text(json.dumps(record))
     with pytest.raises(TrustError, match="signature does not match its contents"):
         send_plan(path, "127.0.0.1:1")
-    _checked(path, _plan(robot), key=_other_key())
+    checked_plan(path, swing_plan(robot), key=_other_key())
     with pytest.raises(TrustError, match=r"signed by untrusted key [0-9a-f]{16}; trust it with `funrec-robot keys --trust"):
         send_plan(path, "127.0.0.1:1")
     # the issue's loosening: --max-handle-force 1000 --prismatic-tolerance 1, signed by a trusted key
-    _checked(path, _plan(robot), max_handle_force=1000.0)
+    checked_plan(path, swing_plan(robot), max_handle_force=1000.0)
     with pytest.raises(TrustError, match=r"threshold max_handle_force = 1000.0 is looser than the accepted policy \(50\)"):
         send_plan(path, "127.0.0.1:1")
-    _checked(path, _plan(robot), prismatic_tolerance=1.0)
+    checked_plan(path, swing_plan(robot), prismatic_tolerance=1.0)
     with pytest.raises(TrustError, match=r"threshold prismatic_tolerance = 1.0 is looser"):
         send_plan(path, "127.0.0.1:1")
-    _checked(path, _plan(robot), max_handle_force=None)
+    checked_plan(path, swing_plan(robot), max_handle_force=None)
     with pytest.raises(TrustError, match=r"threshold max_handle_force = not judged is looser"):
         send_plan(path, "127.0.0.1:1")
-    _checked(path, _plan(robot))
+    checked_plan(path, swing_plan(robot))
     path.write_text(path.read_text().replace('"part_0"', '"part_1"'))  # edited after its check
     with pytest.raises(TrustError, match="is of another plan .* edited after its check"):
         send_plan(path, "127.0.0.1:1")
 
 
-def test_endpoint_refuses_records_a_client_did_not_verify(robot, endpoint, tmp_path) -> None:  # noqa: F811
+def test_endpoint_refuses_records_a_client_did_not_verify(robot, endpoint, tmp_path) -> None:
     _, address = endpoint
-    path = _checked(tmp_path / "plan.json", _plan(robot))
+    path = checked_plan(tmp_path / "plan.json", swing_plan(robot))
     driver = TcpDriver(address)
     with pytest.raises(ProtocolError, match="upload: refused: .*is of another plan"):
-        driver.upload(path.read_text() + " ", _record(path))
-    _checked(path, _plan(robot), key=_other_key())
+        driver.upload(path.read_text() + " ", read_check_record(path))
+    checked_plan(path, swing_plan(robot), key=_other_key())
     with pytest.raises(ProtocolError, match="upload: refused: .*signed by untrusted key"):
-        driver.upload(path.read_text(), _record(path))
-    _checked(path, _plan(robot), max_handle_force=1000.0)
+        driver.upload(path.read_text(), read_check_record(path))
+    checked_plan(path, swing_plan(robot), max_handle_force=1000.0)
     with pytest.raises(ProtocolError, match="upload: refused: .*max_handle_force = 1000.0 is looser"):
-        driver.upload(path.read_text(), _record(path))
+        driver.upload(path.read_text(), read_check_record(path))
     driver.close()
 
 
-def test_unauthenticated_clients_may_say_hello_only(robot, endpoint, tmp_path) -> None:  # noqa: F811
+def test_unauthenticated_clients_may_say_hello_only(robot, endpoint, tmp_path) -> None:
     _, address = endpoint
-    path = _checked(tmp_path / "plan.json", _plan(robot))
+    path = checked_plan(tmp_path / "plan.json", swing_plan(robot))
     anonymous = TcpDriver(address, authenticate=False)
     assert anonymous.info["auth"] == ["token"] and anonymous.info["authenticated"] is False
     with pytest.raises(ProtocolError, match=r"upload: refused: not authenticated; send 'auth'"):
-        anonymous.request("upload", plan_text=path.read_text(), check=_record(path))
+        anonymous.request("upload", plan_text=path.read_text(), check=read_check_record(path))
     for op in ("start", "stop", "acquire", "status"):
         with pytest.raises(ProtocolError, match=f"{op}: refused: not authenticated"):
             anonymous.request(op, plan_id="0" * 64)
@@ -126,11 +126,11 @@ def _self_signed(tmp_path):
     return cert
 
 
-def test_lease_holder_alone_commands_and_keeps_the_plan_alive(robot, endpoint, tmp_path) -> None:  # noqa: F811
+def test_lease_holder_alone_commands_and_keeps_the_plan_alive(robot, endpoint, tmp_path) -> None:
     server, address = endpoint
-    path = _checked(tmp_path / "plan.json", _plan(robot, duration=3.0))
+    path = checked_plan(tmp_path / "plan.json", swing_plan(robot, duration=3.0))
     sender, second, third = TcpDriver(address), TcpDriver(address), TcpDriver(address)
-    plan_id = sender.upload(path.read_text(), _record(path))  # takes the lease
+    plan_id = sender.upload(path.read_text(), read_check_record(path))  # takes the lease
     with pytest.raises(ProtocolError, match=r"start: refused: this client does not hold the lease \(client \d+ does\)"):
         second.start(plan_id)
     with pytest.raises(ProtocolError, match=r"acquire: refused: client \d+ holds the lease"):
@@ -153,7 +153,7 @@ def test_lease_holder_alone_commands_and_keeps_the_plan_alive(robot, endpoint, t
         pass
     third.acquire()
     third.request("reset")
-    plan_id = third.upload(path.read_text(), _record(path))
+    plan_id = third.upload(path.read_text(), read_check_record(path))
     third.start(plan_id)
     second.estop()
     event = third.wait_event(1.0)
@@ -162,33 +162,33 @@ def test_lease_holder_alone_commands_and_keeps_the_plan_alive(robot, endpoint, t
         driver.close()
 
 
-def test_endpoint_refuses_out_of_range_gripper_and_far_starts(robot, endpoint, tmp_path) -> None:  # noqa: F811
+def test_endpoint_refuses_out_of_range_gripper_and_far_starts(robot, endpoint, tmp_path) -> None:
     _, address = endpoint
     driver = TcpDriver(address)
-    bad = _checked(tmp_path / "grasp.json", dataclasses.replace(_plan(robot), grasp_command=-10.0, release_from_grip=True))
+    bad = checked_plan(tmp_path / "grasp.json", dataclasses.replace(swing_plan(robot), grasp_command=-10.0, release_from_grip=True))
     with pytest.raises(ProtocolError, match=r"upload: refused: gripper grasp command -10.0 outside \[0.0, 0.0425\]"):
-        driver.upload(bad.read_text(), _record(bad))
+        driver.upload(bad.read_text(), read_check_record(bad))
     nan = tmp_path / "nan.json"
-    _checked(nan, _plan(robot))
+    checked_plan(nan, swing_plan(robot))
     text = nan.read_text().replace('"grasp": 0.0', '"grasp": NaN')
     with pytest.raises(ProtocolError, match="refused: .*(another plan|not JSON)"):
-        driver.upload(text, _record(nan))
-    near = _checked(tmp_path / "near.json", _plan(robot, duration=0.5, swing=0.05))
-    driver.start(driver.upload(near.read_text(), _record(near)))  # the first plan of a fresh simulation places the robot
+        driver.upload(text, read_check_record(nan))
+    near = checked_plan(tmp_path / "near.json", swing_plan(robot, duration=0.5, swing=0.05))
+    driver.start(driver.upload(near.read_text(), read_check_record(near)))  # the first plan of a fresh simulation places the robot
     while (event := driver.wait_event(0.1)) is None:
         driver.heartbeat()
     assert event["event"] == "done", event
-    plan = _plan(robot, duration=0.5, swing=0.05)
+    plan = swing_plan(robot, duration=0.5, swing=0.05)
     far_q = plan.q.copy()
     far_q[:, 0] += 8.0
-    far = _checked(tmp_path / "far.json", dataclasses.replace(plan, q=far_q))
-    plan_id = driver.upload(far.read_text(), _record(far))
+    far = checked_plan(tmp_path / "far.json", dataclasses.replace(plan, q=far_q))
+    plan_id = driver.upload(far.read_text(), read_check_record(far))
     with pytest.raises(ProtocolError, match=r"start: refused: the plan starts 8.000 from the robot's state at joint base_x"):
         driver.start(plan_id)
     driver.close()
 
 
-def test_a_100_mb_line_is_refused_and_others_are_still_served(robot, endpoint) -> None:  # noqa: F811
+def test_a_100_mb_line_is_refused_and_others_are_still_served(robot, endpoint) -> None:
     _, address = endpoint
     flooder, bystander = TcpDriver(address), TcpDriver(address)
     chunk = b"x" * (1 << 20)
@@ -217,15 +217,15 @@ def test_a_100_mb_line_is_refused_and_others_are_still_served(robot, endpoint) -
     flooder.close(), bystander.close(), anonymous.close()
 
 
-def test_every_malformed_message_gets_a_reply(robot, endpoint, tmp_path) -> None:  # noqa: F811
+def test_every_malformed_message_gets_a_reply(robot, endpoint, tmp_path) -> None:
     server, address = endpoint
     driver = TcpDriver(address)
     driver.acquire()
-    path = _checked(tmp_path / "plan.json", _plan(robot))
+    path = checked_plan(tmp_path / "plan.json", swing_plan(robot))
     data = json.loads(path.read_text())
     data["task"] = [1, 2]
     with pytest.raises(ProtocolError, match="upload: refused"):
-        driver.upload(json.dumps(data), _record(path))
+        driver.upload(json.dumps(data), read_check_record(path))
     with pytest.raises(ProtocolError, match="rate_hz .*expected a number"):
         driver.request("subscribe", rate_hz=[1, 2])
     with pytest.raises(ProtocolError, match="start needs 'plan_id'"):
@@ -250,23 +250,22 @@ def test_options_must_be_finite_and_positive(field, value) -> None:
         SimServerConfig(**{field: value})
 
 
-def test_listening_beyond_loopback_without_auth_is_refused(robot) -> None:  # noqa: F811
+def test_listening_beyond_loopback_without_auth_is_refused(robot) -> None:
     from funrec_robot.sim_server import make_sim_server
 
     with pytest.raises(FunrecError, match="refusing to listen on 0.0.0.0 without authentication"):
         make_sim_server(robot, None, SimServerConfig(host="0.0.0.0", port=0, auth=False))
 
 
-def test_a_crlf_plan_is_sent_as_its_bytes(robot, endpoint, tmp_path) -> None:  # noqa: F811
+def test_a_crlf_plan_is_sent_as_its_bytes(robot, endpoint, tmp_path) -> None:
     _, address = endpoint
     path = tmp_path / "plan.json"
-    write_plan(path, _plan(robot, duration=0.5, swing=0.05))
+    write_plan(path, swing_plan(robot, duration=0.5, swing=0.05))
     path.write_bytes(path.read_bytes().replace(b"\n", b"\r\n"))
-    from test_send import _attested
-
     from funrec_robot.check_record import write_signed_record
+    from tests.helpers.robot_plans import attested
 
-    write_signed_record(_attested(path), path.with_suffix(".check.json"))
+    write_signed_record(attested(path), path.with_suffix(".check.json"))
     result = send_plan(path, address, heartbeat_period=0.05)
     assert result.event == "done", result.detail
     assert np.isfinite(result.wall_time) and DT > 0
@@ -279,21 +278,21 @@ def test_limit_margins_must_be_finite() -> None:
         LimitMargins(velocity=float("nan"))
 
 
-def test_the_ros2_adapter_verifies_records_like_an_endpoint(robot, tmp_path) -> None:  # noqa: F811
+def test_the_ros2_adapter_verifies_records_like_an_endpoint(robot, tmp_path) -> None:
     """Its upload without ROS: the verification runs before any action is sent."""
     from funrec_robot.ros2_driver import Ros2Config, Ros2Driver
 
     driver = object.__new__(Ros2Driver)
     driver.config, driver._plans = Ros2Config(), {}
     path = tmp_path / "plan.json"
-    write_plan(path, _plan(robot))
+    write_plan(path, swing_plan(robot))
     with pytest.raises(ProtocolError, match="refused: check record: not a signed check record"):
         driver.upload(path.read_text(), {"format": "funrec-check/1", "plan_sha256": sha256_file(path), "passed": True})
-    _checked(path, _plan(robot), max_handle_force=1000.0)
+    checked_plan(path, swing_plan(robot), max_handle_force=1000.0)
     with pytest.raises(ProtocolError, match="refused: .*max_handle_force = 1000.0 is looser"):
-        driver.upload(path.read_text(), _record(path))
-    _checked(path, _plan(robot))
-    assert driver.upload(path.read_text(), _record(path)) == sha256_file(path)
+        driver.upload(path.read_text(), read_check_record(path))
+    checked_plan(path, swing_plan(robot))
+    assert driver.upload(path.read_text(), read_check_record(path)) == sha256_file(path)
 
 
 def _client_certificate(tmp_path):
@@ -326,7 +325,7 @@ def _client_certificate(tmp_path):
     return tmp_path / "ca.pem", tmp_path / "client.pem", tmp_path / "client_key.pem"
 
 
-def test_a_client_certificate_signed_by_the_endpoints_ca_authenticates(robot, tmp_path) -> None:  # noqa: F811
+def test_a_client_certificate_signed_by_the_endpoints_ca_authenticates(robot, tmp_path) -> None:
     import threading
 
     from funrec_robot.sim_server import make_sim_server
@@ -366,13 +365,13 @@ def test_keys_command_exports_and_trusts(tmp_path, monkeypatch, capsys) -> None:
     assert "lab pc" in capsys.readouterr().out
 
 
-def test_estop_command_stops_a_plan_it_does_not_hold(robot, endpoint, tmp_path, capsys) -> None:  # noqa: F811
+def test_estop_command_stops_a_plan_it_does_not_hold(robot, endpoint, tmp_path, capsys) -> None:
     from funrec_robot.cli import main
 
     _, address = endpoint
-    path = _checked(tmp_path / "plan.json", _plan(robot, duration=3.0, swing=0.1))
+    path = checked_plan(tmp_path / "plan.json", swing_plan(robot, duration=3.0, swing=0.1))
     sender = TcpDriver(address)
-    plan_id = sender.upload(path.read_text(), _record(path))
+    plan_id = sender.upload(path.read_text(), read_check_record(path))
     beating = threading.Event()
 
     def beat() -> None:  # the holder stays alive while the E-Stop command connects
@@ -392,7 +391,7 @@ def test_estop_command_stops_a_plan_it_does_not_hold(robot, endpoint, tmp_path, 
     sender.close()
 
 
-def _serving(robot, **config):  # noqa: F811
+def _serving(robot, **config):
     """A started endpoint with these settings; stop it with ``_stop_serving``."""
     from funrec_robot.sim_server import make_sim_server
 
@@ -408,7 +407,7 @@ def _stop_serving(server, thread) -> None:
     server.server_close()
 
 
-def test_connection_cap_idle_timeout_slow_clients_and_plan_eviction(robot, tmp_path) -> None:  # noqa: F811
+def test_connection_cap_idle_timeout_slow_clients_and_plan_eviction(robot, tmp_path) -> None:
     server, thread, address = _serving(robot, max_connections=3, idle_timeout=1.0, max_plans=2, max_send_buffer=64 << 10)
     try:
         first, second = TcpDriver(address), TcpDriver(address)
@@ -433,8 +432,8 @@ def test_connection_cap_idle_timeout_slow_clients_and_plan_eviction(robot, tmp_p
         # plans beyond max_plans evict the oldest
         ids = []
         for n in range(3):
-            path = _checked(tmp_path / f"plan{n}.json", _plan(robot, duration=0.5, swing=0.01 * (n + 1)))
-            ids.append(first.upload(path.read_text(), _record(path)))
+            path = checked_plan(tmp_path / f"plan{n}.json", swing_plan(robot, duration=0.5, swing=0.01 * (n + 1)))
+            ids.append(first.upload(path.read_text(), read_check_record(path)))
         with pytest.raises(ProtocolError, match="no uploaded plan .*; upload it first"):
             first.start(ids[0])
         assert set(server.sim.plans) == set(ids[1:])
