@@ -55,7 +55,18 @@ STANDARD_ABLATIONS: tuple[tuple[str, tuple[str, ...]], ...] = (
 """The ablation set "standard": each row switches off one stage with one reconstruct flag, so
 its worth is the difference to the full method: the camera pose graph (loop closures), the
 articulation-constrained part-motion refinement, point-track re-seeding and the hand masks."""
-ABLATION_SETS: dict[str, tuple[tuple[str, tuple[str, ...]], ...]] = {"none": (), "standard": STANDARD_ABLATIONS}
+CUES_ABLATIONS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    ("no depth proposals", ("--no-depth-proposal-enabled",)),
+    ("no joint type in depth", ("--no-joint-type-enabled",)),
+    ("no hands first", ("--no-hands-first",)),
+    ("dense flow on", ("--point-tracks-dense-flow",)),
+    ("no hand masks, no hands first", ("--no-use-hand-masks", "--no-hands-first")),
+)
+"""The ablation set "cues": what each texture-independent cue buys (issue 12): parts proposed from
+depth where tracks give none, the joint type decided in depth, hands detected before the parts,
+and the dense-flow track cue (off by default, on here)."""
+ABLATION_SETS: dict[str, tuple[tuple[str, tuple[str, ...]], ...]] = {
+    "none": (), "standard": STANDARD_ABLATIONS, "cues": CUES_ABLATIONS, "all": STANDARD_ABLATIONS + CUES_ABLATIONS}
 """Named ablation sets selectable with BenchConfig.ablation_set."""
 
 ProgressCallback = Progress
@@ -80,8 +91,10 @@ class BenchConfig:
     """(label, extra reconstruct args) pairs; each runs "funrec reconstruct" with reconstruct_args
     plus its extra args as an additional method and gets a row in the ablation table."""
     ablation_set: str = "none"
-    """Named ablations run in the same bench, after ``ablations``: "none" or "standard" (no
-    camera pose graph, no joint-constrained part motion, no track re-seeding, no hand masks)."""
+    """Named ablations run in the same bench, after ``ablations``: "none", "standard" (no
+    camera pose graph, no joint-constrained part motion, no track re-seeding, no hand masks),
+    "cues" (no depth proposals, no joint type in depth, no hands first, dense flow on, neither
+    hand masks nor hands first) or "all" (both)."""
     ablation_sequences: str | None = None
     """Comma-separated sequence names the ablations run on (None: every sequence); the ablation
     table then compares them with the full method on the same sequences."""
