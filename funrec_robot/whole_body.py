@@ -4,8 +4,6 @@ joint motion collides), the handle path (refined until the joint interpolation s
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import mujoco
 import numpy as np
 
@@ -14,14 +12,12 @@ from funrec.typed import FloatArray
 from funrec_robot.feasibility import GravityOverload, first_collision, gravity_overload
 from funrec_robot.grasp import FLIP, GraspCandidate, handle_frames, offset_along_approach, release_command
 from funrec_robot.ik import WholeBodyIK
+from funrec_robot.plan_config import PlanConfig
 from funrec_robot.retime import point_to_point
 from funrec_robot.robot import RobotDescription
 from funrec_robot.scene import floor_geoms, geoms_near, part_geoms
 from funrec_robot.task import ArticulationTask
 from funrec_robot.trajopt import BasePlacement
-
-if TYPE_CHECKING:
-    from funrec_robot.plan import PlanConfig
 
 
 def _base_q(robot: RobotDescription, pose: FloatArray) -> FloatArray:
