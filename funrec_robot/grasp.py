@@ -11,16 +11,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from funrec.typed import FloatArray
-from funrec_robot.robot import RobotDescription
-from funrec_robot.robot_geometry import RobotGeometry
-from funrec_robot.task import (
-    ArticulationTask,
+from funrec_robot.grasp_frames import (
     T_world_grasp_canonical,
     T_world_grasp_path,
     grasp_free_axis,
     roll_to_hold,
     rotation_about_grasp_axis,
 )
+from funrec_robot.robot import RobotDescription
+from funrec_robot.robot_geometry import RobotGeometry
+from funrec_robot.task import ArticulationTask
 
 
 @dataclass(frozen=True)

@@ -26,6 +26,7 @@ from funrec_robot.feasibility import (
     resting_force,
 )
 from funrec_robot.grasp import grasp_candidates, release_command
+from funrec_robot.grasp_frames import T_world_grasp_canonical, grasp_free_axis
 from funrec_robot.plan_config import PlanConfig
 from funrec_robot.plan_file import Plan, Segment, sha256_file
 from funrec_robot.retime import Trajectory, point_to_point, retime_path
@@ -40,13 +41,7 @@ from funrec_robot.scene import (
     static_footprint,
 )
 from funrec_robot.sim_model import build_mujoco_model
-from funrec_robot.task import (
-    ArticulationTask,
-    T_world_grasp_canonical,
-    grasp_free_axis,
-    path_states,
-    resolve_target,
-)
+from funrec_robot.task import ArticulationTask, path_states, resolve_target
 from funrec_robot.task_sources import load_task, locate_scene
 from funrec_robot.trajopt import BasePlacement, PlacementProblem, place_base
 from funrec_robot.whole_body import whole_body_configurations

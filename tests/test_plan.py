@@ -19,11 +19,12 @@ from funrec.errors import FunrecError, PlanningError
 from funrec.formats.twin import TwinArticulation, make_part, write_articulation
 from funrec_robot import build_mujoco_model, default_robot_path, load_robot, robot_indices
 from funrec_robot.feasibility import kinematic_collisions
+from funrec_robot.grasp_frames import roll_to_hold, rotation_about_grasp_axis
 from funrec_robot.plan import PlanConfig, plan_interaction
 from funrec_robot.plan_file import read_plan, write_plan
 from funrec_robot.retime import limit_use
 from funrec_robot.scene import bodies_geoms, floor_geoms, part_joint
-from funrec_robot.task import resolve_target, roll_to_hold, rotation_about_grasp_axis
+from funrec_robot.task import resolve_target
 from funrec_robot.task_sources import locate_scene, task_from_ground_truth, task_from_twin
 
 ACCELERATION_TOL = 0.03
