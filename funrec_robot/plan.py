@@ -10,7 +10,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import asdict, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import mujoco
@@ -176,49 +176,37 @@ def _gripper_move(
     return _hold(q, (len(values) - 1) * config.retime.dt, config.retime.dt), values
 
 
-def plan_interaction(
-    robot: RobotDescription,
-    scene_xml: str | Path,
-    task: ArticulationTask,
-    target: str | float = "open",
-    start: float | None = None,
-    config: PlanConfig = PlanConfig(),
-    model: mujoco.MjModel | None = None,
-) -> Plan:
-    """Plan a mobile manipulator opening (or closing) one articulated part of a scene.
+@dataclass(frozen=True)
+class _HandlePath:
+    """The states the handle is to be carried through, after the target was resolved and capped."""
 
-    Args:
-        robot: the robot.
-        scene_xml: MJCF scene the task is expressed in (its world frame is the task's).
-        task: the part and its joint, grasp and range (see ``task_sources``).
-        target: 'open', 'close', 'demo' or a joint state (rad or m).
-        start: the part's state when the robot arrives; default ``task.state_current``.
-        config: settings.
-        model: ``build_mujoco_model(robot, scene_xml)`` if already built.
+    states: FloatArray
+    """(N,) part states along the handle path, rad or m."""
+    start_state: float
+    """The part's state when the robot arrives."""
+    target_state: float
+    """Where the hand lets go."""
+    final_state: float | None
+    """Where the part comes to rest after release, if not where the hand lets go (a part let go to fall)."""
+    demo: bool
+    """The path is the demonstration's."""
+    capped: tuple[float, str] | None
+    """(state, scene geom) where the part first runs into the scene on the way, if it does."""
+    reach_capped: dict | None
+    """The state the arm's reach capped the target at, and the requested one (recorded in the plan)."""
+    config: PlanConfig
+    """The settings, with the grasp's fall state set for a part let go to fall."""
+    candidates: list
+    """Grasp candidates along ``states`` (``grasp.grasp_candidates``), best first."""
 
-    Returns:
-        The timed plan, starting with the base at its first stop and the arm at home, gripper open.
 
-    Raises:
-        PlanningError: naming the step that failed (base placement, IK at a path state, timing).
-    """
-    clock = time.perf_counter()
-    cpu_started = time.process_time()
-    timings: dict[str, float] = {}
-
-    def lap(name: str) -> None:
-        nonlocal clock
-        now = time.perf_counter()
-        timings[name] = round(now - clock, 4)
-        clock = now
-
-    model = build_mujoco_model(robot, scene_xml) if model is None else model
-    lap("model")
-    joint = part_joint(model, task.part)
-    geometry = measure_robot(robot)
+def _requested_states(
+    task: ArticulationTask, model: mujoco.MjModel, joint: int, target: str | float, start: float | None, config: PlanConfig
+) -> tuple[FloatArray, float, float, bool, tuple[float, str] | None]:
+    """Path states from the start to the target, the target stopped short of the range ends and of where the
+    part first runs into the scene; returns states, start, target, demo, and where it was blocked."""
     start_state = task.state_current if start is None else float(start)
     target_state = resolve_target(task, target)
-    final_state = None  # where the part comes to rest after release, if not where the hand lets go
     capped = None
     if isinstance(target, str) and target.strip().lower() in ("open", "close"):
         margin = config.end_margin_rad if task.joint_type == "revolute" else config.end_margin_m
@@ -236,12 +224,27 @@ def plan_interaction(
         states = _demo_states(task, start_state, config)
     else:
         states = path_states(task, start_state, target_state, T_world_grasp_canonical(task))
-    lap("path")
+    return states, start_state, target_state, demo, capped
 
-    attempts = sorted(
-        ((bases, rank) for bases in range(1, config.max_base_stops + 1) for rank in range(len(config.grasp.tilts))),
-        key=lambda attempt: attempt[0] + 0.6 * attempt[1],
-    )
+
+def _handle_path(
+    robot: RobotDescription,
+    model: mujoco.MjModel,
+    joint: int,
+    task: ArticulationTask,
+    geometry: RobotGeometry,
+    target: str | float,
+    start: float | None,
+    config: PlanConfig,
+) -> _HandlePath:
+    """The handle path and its grasp candidates; 'open' / 'close' beyond the arm's reach are cut to where it
+    reaches (a part gravity carries on from there is let go to fall).
+
+    Raises:
+        PlanningError: no grasp tilt keeps the handle path within the arm's vertical reach.
+    """
+    states, start_state, target_state, demo, capped = _requested_states(task, model, joint, target, start, config)
+    final_state = None  # where the part comes to rest after release, if not where the hand lets go
     r_max = geometry.reach * config.placement.r_max_fraction
     candidates = grasp_candidates(robot, task, states, geometry, r_max, config.grasp)
     reach_capped = None
@@ -275,8 +278,33 @@ def plan_interaction(
             f"part '{task.part}': the handle path leaves the arm's vertical reach from the shoulder "
             f"({geometry.p_base_shoulder[2]:.2f} m high) whatever the grasp tilt"
         )
+    return _HandlePath(states, start_state, target_state, final_state, demo, capped, reach_capped, config, candidates)
+
+
+def _search(
+    robot: RobotDescription,
+    model: mujoco.MjModel,
+    joint: int,
+    task: ArticulationTask,
+    geometry: RobotGeometry,
+    handle: _HandlePath,
+    cpu_started: float,
+) -> dict:
+    """Try base stops (1, 2, ...) and grasp tilts, cheapest first, until base placement and whole-body IK
+    succeed or the CPU time budget is spent; a gravity overload moves on to the robot's next home posture,
+    then to unloading the arm, then to grasps that point the gripper down.
+
+    Returns ``whole_body_configurations``' solution.
+
+    Raises:
+        PlanningError: the error of the furthest step reached (IK beats base placement).
+    """
+    config, candidates, states = handle.config, handle.candidates, handle.states
+    attempts = sorted(
+        ((bases, rank) for bases in range(1, config.max_base_stops + 1) for rank in range(len(config.grasp.tilts))),
+        key=lambda attempt: attempt[0] + 0.6 * attempt[1],
+    )
     errors: list[tuple[int, PlanningError]] = []
-    solution = None
     # (base stops, grasp rank, unload the arm, base placement to reuse)
     pending: list[tuple[int, int, bool, BasePlacement | None]] = [
         (bases, rank, False, None) for bases, rank in attempts if rank < len(candidates)
@@ -286,15 +314,15 @@ def plan_interaction(
         bases, rank, unload, placement = pending.pop(0)
         grasp = candidates[rank]
         if placement is None:
-            problem = _placement_problem(robot, model, joint, geometry, grasp.frames, states, bases, config, final_state)
+            problem = _placement_problem(robot, model, joint, geometry, grasp.frames, states, bases, config, handle.final_state)
             try:
                 placement = place_base(problem, config.placement)
             except PlanningError as exc:
                 errors.append((0, exc))
                 continue
         try:
-            solution = whole_body_configurations(robot, model, joint, task, grasp, states, placement, target_state,
-                                                 geometry.fingertip_depth, config, unload)
+            return whole_body_configurations(robot, model, joint, task, grasp, states, placement, handle.target_state,
+                                             geometry.fingertip_depth, config, unload)
         except GravityOverload as exc:
             errors.append((1, exc))
             if postures:  # the robot's next home posture may hold the gripper with less load on the wrist
@@ -311,18 +339,21 @@ def plan_interaction(
         except PlanningError as exc:
             errors.append((1, exc))
             continue
-        break
-    if solution is None:
-        if not errors:
-            raise PlanningError(f"part '{task.part}': planning time budget exhausted")
-        furthest = max(stage for stage, _ in errors)
-        raise [exc for stage, exc in errors if stage == furthest][-1]
-    lap("placement_ik")
-    flip, path, configs, tracked = solution["flip"], solution["path"], solution["configs"], solution["tracked"]
-    states = solution["states"]
-    grasp = solution["grasp"]
-    depth, opening, holding = grasp.depth, grasp.opening, grasp.holding
+    if not errors:
+        raise PlanningError(f"part '{task.part}': planning time budget exhausted")
+    furthest = max(stage for stage, _ in errors)
+    raise [exc for stage, exc in errors if stage == furthest][-1]
 
+
+def _timed(
+    robot: RobotDescription, model: mujoco.MjModel, task: ArticulationTask, handle: _HandlePath, solution: dict
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, tuple[Segment, ...]]:
+    """Time the solved configurations: approach (ruckig, slow at the end), grasp, actuate (toppra along the
+    handle path), release, retreat; returns t, q, qd, gripper command, part state and the segments."""
+    config = handle.config
+    path, configs, states, grasp = solution["path"], solution["configs"], solution["states"], solution["grasp"]
+    opening, holding = grasp.opening, grasp.holding
+    start_state, target_state = handle.start_state, handle.target_state
     v, a = dynamic_limits(robot, model, config.effort_share_damping, config.effort_share_inertia)
     rc = config.retime
     moves = list(zip(configs["approach"][:-1], configs["approach"][1:]))
@@ -341,14 +372,14 @@ def plan_interaction(
         np.concatenate([a, [config.handle_acceleration / radius]]),
         rc,
     )
-    if demo and task.demo_times.size and actuate.duration < float(task.demo_times[-1] - task.demo_times[0]):
+    if handle.demo and task.demo_times.size and actuate.duration < float(task.demo_times[-1] - task.demo_times[0]):
         actuate = _slowed(actuate, float(task.demo_times[-1] - task.demo_times[0]) / actuate.duration, rc.dt)
     q_path = configs["path"]
     retreat = point_to_point(q_path[-1], configs["retreat"], v, a, rc)
-    if final_state is not None:
+    if handle.final_state is not None:
         # The released part rests on the open fingers until they have slid out from under it.
         retreat = _slowed(retreat, 1.0 / config.falling_retreat_scale, rc.dt)
-    end_state = target_state if final_state is None else final_state
+    end_state = target_state if handle.final_state is None else handle.final_state
     close_hold, close_cmd = _gripper_move(q_path[0], opening, holding, config)
     released = release_command(robot, holding, config.grasp)
     open_hold, open_cmd = _gripper_move(q_path[-1], holding, released, config, config.release_hold_time)
@@ -364,12 +395,24 @@ def plan_interaction(
         ("retreat", retreat, constant(retreat, released), constant(retreat, end_state)),
     ]
     t, q, qd, gripper, part_state, raw_segments = _concatenate(pieces, rc.dt)
-    segments = _merge_segments(raw_segments, t)
-    lap("retime")
-    placement = solution["placement"]
+    return t, q, qd, gripper, part_state, _merge_segments(raw_segments, t)
 
-    T_start = path[0]
-    provenance = {
+
+def _provenance(
+    robot: RobotDescription,
+    scene_xml: str | Path,
+    task: ArticulationTask,
+    target: str | float,
+    handle: _HandlePath,
+    solution: dict,
+    timings: dict[str, float],
+    cpu_started: float,
+) -> dict:
+    """What a plan records of how it was made: inputs and their hashes, the caps on its target, the grasp,
+    the base stops, IK residuals, timings and the settings."""
+    grasp, configs, tracked, placement = solution["grasp"], solution["configs"], solution["tracked"], solution["placement"]
+    capped = handle.capped
+    return {
         "planner": PLANNER_VERSION,
         "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
         "robot_file": str(robot.yaml_path),
@@ -382,12 +425,12 @@ def plan_interaction(
         "task_files": {str(p): sha256_file(p) for p in task.source_files if Path(p).is_file()},
         "target": str(target),
         "target_blocked_at": None if capped is None else {"state": capped[0], "by": capped[1]},
-        "target_capped_by_reach": reach_capped,
+        "target_capped_by_reach": handle.reach_capped,
         "grasp": {
-            "depth_m": depth,
-            "flip": bool(flip),
+            "depth_m": grasp.depth,
+            "flip": bool(solution["flip"]),
             "tilt_rad": grasp.tilt,
-            "opening": opening,
+            "opening": grasp.opening,
             "approach_vias": len(configs["approach"]) - 3,
             "handle_axis_world": None if task.handle_axis_world is None else np.round(task.handle_axis_world, 6).tolist(),
             "approach_world": np.round(task.approach_world, 6).tolist(),
@@ -399,15 +442,67 @@ def plan_interaction(
         "timings_s": timings,
         "plan_time_s": round(sum(timings.values()), 4),
         "plan_cpu_time_s": round(time.process_time() - cpu_started, 4),
-        "config": asdict(config),
+        "config": asdict(handle.config),
     }
+
+
+def plan_interaction(
+    robot: RobotDescription,
+    scene_xml: str | Path,
+    task: ArticulationTask,
+    target: str | float = "open",
+    start: float | None = None,
+    config: PlanConfig = PlanConfig(),
+    model: mujoco.MjModel | None = None,
+) -> Plan:
+    """Plan a mobile manipulator opening (or closing) one articulated part of a scene.
+
+    The steps: the handle path (target resolved, capped at the scene and the arm's reach), the search over
+    base stops and grasp tilts (base placement, whole-body IK), timing, provenance.
+
+    Args:
+        robot: the robot.
+        scene_xml: MJCF scene the task is expressed in (its world frame is the task's).
+        task: the part and its joint, grasp and range (see ``task_sources``).
+        target: 'open', 'close', 'demo' or a joint state (rad or m).
+        start: the part's state when the robot arrives; default ``task.state_current``.
+        config: settings.
+        model: ``build_mujoco_model(robot, scene_xml)`` if already built.
+
+    Returns:
+        The timed plan, starting with the base at its first stop and the arm at home, gripper open.
+
+    Raises:
+        PlanningError: naming the step that failed (base placement, IK at a path state, timing).
+    """
+    clock = time.perf_counter()
+    cpu_started = time.process_time()
+    timings: dict[str, float] = {}
+
+    def lap(name: str) -> None:
+        nonlocal clock
+        now = time.perf_counter()
+        timings[name] = round(now - clock, 4)
+        clock = now
+
+    model = build_mujoco_model(robot, scene_xml) if model is None else model
+    lap("model")
+    joint = part_joint(model, task.part)
+    geometry = measure_robot(robot)
+    handle = _handle_path(robot, model, joint, task, geometry, target, start, config)
+    lap("path")
+    solution = _search(robot, model, joint, task, geometry, handle, cpu_started)
+    lap("placement_ik")
+    t, q, qd, gripper, part_state, segments = _timed(robot, model, task, handle, solution)
+    lap("retime")
+    path, grasp, placement = solution["path"], solution["grasp"], solution["placement"]
     return Plan(
         robot_name=robot.name,
         joint_names=robot.joint_names,
         gripper_joints=robot.gripper.joints,
         gripper_open=robot.gripper.open,
         gripper_closed=robot.gripper.closed,
-        grasp_command=holding,
+        grasp_command=grasp.holding,
         t=t,
         q=q,
         qd=qd,
@@ -419,13 +514,13 @@ def plan_interaction(
         axis_world=task.axis_world,
         pivot_world=task.pivot_world,
         state_range=task.state_range,
-        start_state=start_state,
-        target_state=end_state,
-        T_world_grasp_start=T_start,
-        p_world_grasp_target=path[-1, :3, 3] + depth * path[-1, :3, 2],
+        start_state=handle.start_state,
+        target_state=handle.target_state if handle.final_state is None else handle.final_state,
+        T_world_grasp_start=path[0],
+        p_world_grasp_target=path[-1, :3, 3] + grasp.depth * path[-1, :3, 2],
         grasp_free_axis=grasp_free_axis(task),
         base_poses=placement.poses,
-        provenance=provenance,
+        provenance=_provenance(robot, scene_xml, task, target, handle, solution, timings, cpu_started),
         release_from_grip=task.handle_width is None,
     )
 
