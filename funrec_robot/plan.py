@@ -29,6 +29,7 @@ from funrec_robot.grasp import grasp_candidates, release_command
 from funrec_robot.grasp_frames import T_world_grasp_canonical, grasp_free_axis
 from funrec_robot.plan_config import PlanConfig
 from funrec_robot.plan_file import Plan, Segment, sha256_file
+from funrec_robot.reach import handle_height, lifted, reach_refusal
 from funrec_robot.retime import Trajectory, point_to_point, retime_path
 from funrec_robot.robot import RobotDescription, load_robot
 from funrec_robot.robot_geometry import RobotGeometry, measure_robot
@@ -300,8 +301,10 @@ def _search(
         PlanningError: the error of the furthest step reached (IK beats base placement).
     """
     config, candidates, states = handle.config, handle.candidates, handle.states
+    # A differential-drive base cannot follow the sideways steps between stops: it stands at one stop.
+    max_stops = 1 if robot.drive == "differential" else config.max_base_stops
     attempts = sorted(
-        ((bases, rank) for bases in range(1, config.max_base_stops + 1) for rank in range(len(config.grasp.tilts))),
+        ((bases, rank) for bases in range(1, max_stops + 1) for rank in range(len(config.grasp.tilts))),
         key=lambda attempt: attempt[0] + 0.6 * attempt[1],
     )
     errors: list[tuple[int, PlanningError]] = []
@@ -489,6 +492,12 @@ def plan_interaction(
     lap("model")
     joint = part_joint(model, task.part)
     geometry = measure_robot(robot)
+    refusal = reach_refusal(robot, geometry, task)
+    if refusal is not None:
+        raise PlanningError(f"part '{task.part}': {refusal}")
+    if geometry.lift_range is not None:  # a torso or mast starts at the handle's height; the IK moves it on
+        robot = lifted(robot, geometry, handle_height(task))
+        geometry = measure_robot(robot)
     handle = _handle_path(robot, model, joint, task, geometry, target, start, config)
     lap("path")
     solution = _search(robot, model, joint, task, geometry, handle, cpu_started)

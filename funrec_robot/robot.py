@@ -73,6 +73,8 @@ class GripperDescription:
     """Command for open fingers: the actuator's control, or the finger joint position (m or rad)."""
     closed: float
     """Command for closed fingers, same unit."""
+    extra_actuators: tuple[str, ...] = ()
+    """Further actuators given the same command (a model with one actuator per finger)."""
 
 
 @dataclass(frozen=True)
@@ -127,6 +129,15 @@ class RobotDescription:
     """Joint damping that replaces the model's in simulation, N s/m or N m s/rad."""
     gravity_compensation: bool
     """Whether the simulated controllers cancel gravity (through the actuators, within effort limits)."""
+    planar_base: bool = False
+    """The model's free joint on the root body was replaced by the planar base joints (``model_facts.robot_spec``)."""
+    drive: str = "holonomic"
+    """'holonomic' or 'differential': a differential base moves only along its heading (x) and turns on the
+    spot; the planner keeps it still at its stop while the arm works (see ``plan``)."""
+    base_height: float = 0.0
+    """Height of the root body above the base frame (the floor), m."""
+    ee_body: str | None = None
+    """Body the end-effector site was added to, if the model has no site for it."""
     q_postures: tuple[FloatArray, ...] = ()
     """(nq,) other home configurations the planner tries, in order, when the arm in ``q_home`` cannot hold the
     gripper at the handle within its effort limits (a 7-DoF arm reaches a grasp in many ways; with a heavy
@@ -293,7 +304,10 @@ def _gripper(facts: ModelFacts) -> GripperDescription:
             raise RobotDescriptionError(
                 file.path, f"gripper.{key}: {value:g} outside the command range {command_ranges}"
             )
-    return GripperDescription(file.gripper_joints, file.gripper_actuator, file.gripper_open, file.gripper_closed)
+    for k, name in enumerate(file.gripper_extra_actuators):
+        facts.actuator_ctrlrange(f"gripper.actuator[{k + 1}]", name)
+    return GripperDescription(file.gripper_joints, file.gripper_actuator, file.gripper_open, file.gripper_closed,
+                              file.gripper_extra_actuators)
 
 
 def _servos(facts: ModelFacts) -> dict[str, ServoGains]:
@@ -374,6 +388,10 @@ def load_robot(path: str | Path) -> RobotDescription:
         servos=servos,
         damping=dict(file.damping),
         gravity_compensation=file.gravity_compensation,
+        planar_base=file.planar_base,
+        drive=file.drive,
+        base_height=file.base_height,
+        ee_body=file.ee_body,
         **limits,
     )
 
