@@ -303,6 +303,9 @@ def _search(
     config, candidates, states = handle.config, handle.candidates, handle.states
     # A differential-drive base cannot follow the sideways steps between stops: it stands at one stop.
     max_stops = 1 if robot.drive == "differential" else config.max_base_stops
+    # Each stop serves at least one path state: a short path (a part barely opened, a twin's small range) with
+    # more stops than states left a stop without states, and an IndexError reached the user.
+    max_stops = min(max_stops, len(states))
     attempts = sorted(
         ((bases, rank) for bases in range(1, max_stops + 1) for rank in range(len(config.grasp.tilts))),
         key=lambda attempt: attempt[0] + 0.6 * attempt[1],

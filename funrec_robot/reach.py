@@ -9,7 +9,9 @@ outside that band cannot be reached whatever the optimisation does; it is refuse
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 
@@ -83,4 +85,37 @@ def lifted(robot: RobotDescription, geometry: RobotGeometry, height: float) -> R
     return replace(robot, q_home=q_home, q_postures=postures)
 
 
-__all__ = ["LIFT_ABOVE_HANDLE_M", "ReachBand", "handle_height", "lifted", "reach_band", "reach_refusal"]
+@dataclass(frozen=True)
+class ReachRow:
+    """Whether each robot can reach one part's handle."""
+
+    part: str
+    """Part name."""
+    height: float
+    """Handle height where the hand takes it, m."""
+    refusals: tuple[str | None, ...]
+    """Per robot: None if it may reach the handle, else why not (one sentence)."""
+
+
+def reach_table(scene: str | Path, robot_paths: Sequence[str | Path]) -> tuple[tuple[str, ...], tuple[ReachRow, ...]]:
+    """For every part of a scene (twin folder, gt/ or capture folder, or their MJCF) and every robot file,
+    whether the robot can reach its handle (``reach_refusal``); returns the robot names and one row per part.
+
+    Raises:
+        FunrecError: an unreadable scene or robot file (naming it).
+    """
+    from funrec_robot.robot import load_robot
+    from funrec_robot.robot_geometry import measure_robot
+    from funrec_robot.task_sources import load_task, locate_scene, part_names
+
+    source = locate_scene(scene)
+    robots = [load_robot(path) for path in robot_paths]
+    geometries = [measure_robot(robot) for robot in robots]
+    rows = []
+    for name in part_names(source):
+        task = load_task(source, name)
+        rows.append(ReachRow(name, handle_height(task), tuple(reach_refusal(r, g, task) for r, g in zip(robots, geometries))))
+    return tuple(r.name for r in robots), tuple(rows)
+
+
+__all__ = ["LIFT_ABOVE_HANDLE_M", "ReachBand", "ReachRow", "handle_height", "lifted", "reach_band", "reach_refusal", "reach_table"]

@@ -75,6 +75,17 @@ class GripperDescription:
     """Command for closed fingers, same unit."""
     extra_actuators: tuple[str, ...] = ()
     """Further actuators given the same command (a model with one actuator per finger)."""
+    open_width: float | None = None
+    """Gap between the jaws at the open command, m; None: twice the open-to-closed span (fingers on slides
+    whose command is each finger's travel, m). A hinged jaw (Spot's) gives its gap here."""
+
+    def command(self, half_width: float) -> float:
+        """The command that leaves ``half_width`` between the grasp centre and each jaw (linear between closed
+        and open; not clipped)."""
+        span = self.open - self.closed
+        if self.open_width is None:
+            return self.closed + half_width * float(np.sign(span))
+        return self.closed + half_width * span / (self.open_width / 2.0)
 
 
 @dataclass(frozen=True)
@@ -307,7 +318,7 @@ def _gripper(facts: ModelFacts) -> GripperDescription:
     for k, name in enumerate(file.gripper_extra_actuators):
         facts.actuator_ctrlrange(f"gripper.actuator[{k + 1}]", name)
     return GripperDescription(file.gripper_joints, file.gripper_actuator, file.gripper_open, file.gripper_closed,
-                              file.gripper_extra_actuators)
+                              file.gripper_extra_actuators, file.gripper_open_width)
 
 
 def _servos(facts: ModelFacts) -> dict[str, ServoGains]:

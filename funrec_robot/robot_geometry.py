@@ -16,6 +16,9 @@ from funrec_robot.robot import RobotDescription
 from funrec_robot.scene import box_corners, geom_boxes, subtree_bodies
 from funrec_robot.sim_model import build_mujoco_model, reset_to_home, robot_indices
 
+FIXED_JAW_REACH_M = 0.02
+"""A geom of the hand (not of a finger) reaching this close to the fingertips along the approach is a fixed
+jaw, m (palms and wrist housings end well short of the fingertips)."""
 FOOTPRINT_CELL_M = 0.3
 """Largest side of the cells whose circumscribed circles cover a footprint rectangle, m."""
 
@@ -120,6 +123,12 @@ def _measure(robot: RobotDescription) -> RobotGeometry:
     finger_geoms = all_geoms[np.isin(model.geom_bodyid[all_geoms], finger_bodies)]
     hand_bodies = subtree_bodies(model, int(model.site_bodyid[indices.grasp_site]))
     palm_geoms = np.setdiff1d(all_geoms[np.isin(model.geom_bodyid[all_geoms], hand_bodies)], finger_geoms)
+    # A one-jaw gripper's fixed jaw belongs to the hand's body but reaches as far as the moving jaw: it is a
+    # finger (the handle sits against it), not palm.
+    tip = float(((_corners(model, data, finger_geoms) - p_grasp) @ R_world_grasp)[:, 2].max())
+    far = np.array([((_corners(model, data, [g]) - p_grasp) @ R_world_grasp)[:, 2].max() for g in palm_geoms])
+    jaws = palm_geoms[far >= tip - FIXED_JAW_REACH_M] if len(palm_geoms) else palm_geoms
+    finger_geoms, palm_geoms = np.union1d(finger_geoms, jaws), np.setdiff1d(palm_geoms, jaws)
 
     body_corners = _corners(model, data, body_geoms)
     arm_corners = _corners(model, data, arm_geoms)

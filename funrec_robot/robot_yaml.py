@@ -117,6 +117,8 @@ class RobotFile:
     """Body the end-effector site ``ee_site`` is added to (at its origin), for models without a site."""
     gripper_extra_actuators: tuple[str, ...] = ()
     """Further actuators that get the same command as ``gripper_actuator`` (one per finger)."""
+    gripper_open_width: float | None = None
+    """Gap between the jaws at the open command, m (None: twice the command span, for finger slides)."""
 
 
 class _Reader:
@@ -239,7 +241,7 @@ def read_robot_yaml(path: str | Path) -> RobotFile:
         raise r.fail("base", f"planar: true adds the base joints {format_names(PLANAR_JOINTS.values())}; do not name x, y or yaw as well")
     if planar:
         motions = dict(PLANAR_JOINTS)
-    gripper = r.mapping(top["gripper"], "gripper", ("joints", "actuator", "open", "closed"))
+    gripper = r.mapping(top["gripper"], "gripper", ("joints", "actuator", "open", "closed", "open_width"))
     for key in ("joints", "open", "closed"):
         if key not in gripper:
             raise r.fail("gripper", f"missing key '{key}'")
@@ -303,6 +305,7 @@ def read_robot_yaml(path: str | Path) -> RobotFile:
         base_height=r.number(base.get("height", 0.0), "base.height", 0.0),
         ee_body=ee_body,
         gripper_extra_actuators=actuators[1:],
+        gripper_open_width=r.number(gripper["open_width"], "gripper.open_width", positive=True) if "open_width" in gripper else None,
     )
 
 
