@@ -79,6 +79,11 @@ class GripperDescription:
     """Gap between the jaws at the open command, m; None: twice the open-to-closed span (fingers on slides
     whose command is each finger's travel, m). A hinged jaw (Spot's) gives its gap here."""
 
+    force: float | None = None
+    """Effort limit of the finger joints from the robot file (``limits.effort``), N or N m: it also caps the
+    model's gripper actuators in simulation (a model's unlimited jaw servo would squeeze a handle with
+    hundreds of newtons). None: the model's own limits."""
+
     def command(self, half_width: float) -> float:
         """The command that leaves ``half_width`` between the grasp centre and each jaw (linear between closed
         and open; not clipped)."""
@@ -317,8 +322,9 @@ def _gripper(facts: ModelFacts) -> GripperDescription:
             )
     for k, name in enumerate(file.gripper_extra_actuators):
         facts.actuator_ctrlrange(f"gripper.actuator[{k + 1}]", name)
+    forces = [file.effort_limits[n] for n in file.gripper_joints if n in file.effort_limits]
     return GripperDescription(file.gripper_joints, file.gripper_actuator, file.gripper_open, file.gripper_closed,
-                              file.gripper_extra_actuators, file.gripper_open_width)
+                              file.gripper_extra_actuators, file.gripper_open_width, min(forces) if forces else None)
 
 
 def _servos(facts: ModelFacts) -> dict[str, ServoGains]:

@@ -99,6 +99,13 @@ def _prepare_robot_spec(robot: RobotDescription) -> mujoco.MjSpec:
         if joint.actfrclimited != mujoco.mjtLimited.mjLIMITED_TRUE:
             joint.actfrcrange = [-gains.force, gains.force]
             joint.actfrclimited = mujoco.mjtLimited.mjLIMITED_TRUE
+    gripper = robot.gripper
+    if gripper.force is not None and gripper.actuator is not None:
+        for name in (gripper.actuator, *gripper.extra_actuators):
+            actuator = spec.actuator(name)
+            gear = abs(float(actuator.gear[0])) or 1.0
+            actuator.forcerange = [-gripper.force / gear, gripper.force / gear]
+            actuator.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
     root = spec.body(robot.root_body)
     if robot.gravity_compensation:
         for body in [root, *root.find_all(mujoco.mjtObj.mjOBJ_BODY)]:
