@@ -35,15 +35,16 @@ from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+import mujoco
 import numpy as np
 
 from funrec.typed import FloatArray
 from funrec_robot.errors import RobotDescriptionError, UnknownNameError, format_names
-from funrec_robot.model_facts import AXIS_TOLERANCE, ModelFacts, check_base_axes, read_model_facts
+from funrec_robot.model_facts import AXIS_TOLERANCE, ModelFacts, check_base_axes, object_names, read_model_facts
 from funrec_robot.robot_yaml import BASE_MOTIONS, RobotFile, read_robot_yaml
 
 BaseType = Literal["fixed", "holonomic", "x+y", "x", "y", "yaw", "x+yaw", "y+yaw"]
@@ -154,6 +155,8 @@ class RobotDescription:
     """Height of the root body above the base frame (the floor), m."""
     ee_body: str | None = None
     """Body the end-effector site was added to, if the model has no site for it."""
+    masses: dict[str, float] = field(default_factory=dict)
+    """Body -> mass replacing the model file's (inertia scaled alike) in every model built for the robot, kg."""
     q_postures: tuple[FloatArray, ...] = ()
     """(nq,) other home configurations the planner tries, in order, when the arm in ``q_home`` cannot hold the
     gripper at the handle within its effort limits (a 7-DoF arm reaches a grasp in many ways; with a heavy
@@ -389,6 +392,10 @@ def load_robot(path: str | Path) -> RobotDescription:
     if file.ee_site not in facts.sites:
         raise UnknownNameError(file.path, "ee.site", "site", file.ee_site, facts.sites)
     _check_urdf(file, planning)
+    bodies = object_names(facts.model, mujoco.mjtObj.mjOBJ_BODY, range(1, facts.model.nbody))
+    for name in file.masses:
+        if name not in bodies:
+            raise UnknownNameError(file.path, "simulation.masses", "body", name, bodies)
     return RobotDescription(
         name=file.name,
         yaml_path=file.path.resolve(),
@@ -409,6 +416,7 @@ def load_robot(path: str | Path) -> RobotDescription:
         drive=file.drive,
         base_height=file.base_height,
         ee_body=file.ee_body,
+        masses=dict(file.masses),
         **limits,
     )
 

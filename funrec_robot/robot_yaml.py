@@ -9,7 +9,7 @@ from __future__ import annotations
 import importlib.util
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -119,6 +119,8 @@ class RobotFile:
     """Further actuators that get the same command as ``gripper_actuator`` (one per finger)."""
     gripper_open_width: float | None = None
     """Gap between the jaws at the open command, m (None: twice the command span, for finger slides)."""
+    masses: dict[str, float] = field(default_factory=dict)
+    """Body -> mass replacing the model's, kg (its inertia scaled alike), for a model file whose masses are wrong."""
 
 
 class _Reader:
@@ -254,7 +256,7 @@ def read_robot_yaml(path: str | Path) -> RobotFile:
         (r.text(actuators, "gripper.actuator"),) if actuators is not None else ())
     limits = r.mapping(top.get("limits"), "limits", ("position", "velocity", "acceleration", "effort"))
     position = r.mapping(limits.get("position"), "limits.position")
-    simulation = r.mapping(top.get("simulation"), "simulation", ("gravity_compensation", "damping", "servos"))
+    simulation = r.mapping(top.get("simulation"), "simulation", ("gravity_compensation", "damping", "servos", "masses"))
     gravity = simulation.get("gravity_compensation", False)
     if not isinstance(gravity, bool):
         raise r.fail("simulation.gravity_compensation", f"expected true or false, got {gravity!r}")
@@ -305,6 +307,7 @@ def read_robot_yaml(path: str | Path) -> RobotFile:
         base_height=r.number(base.get("height", 0.0), "base.height", 0.0),
         ee_body=ee_body,
         gripper_extra_actuators=actuators[1:],
+        masses=r.number_map(simulation.get("masses"), "simulation.masses", positive=True),
         gripper_open_width=r.number(gripper["open_width"], "gripper.open_width", positive=True) if "open_width" in gripper else None,
     )
 

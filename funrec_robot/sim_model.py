@@ -99,6 +99,10 @@ def _prepare_robot_spec(robot: RobotDescription) -> mujoco.MjSpec:
         if joint.actfrclimited != mujoco.mjtLimited.mjLIMITED_TRUE:
             joint.actfrcrange = [-gains.force, gains.force]
             joint.actfrclimited = mujoco.mjtLimited.mjLIMITED_TRUE
+    for name, mass in robot.masses.items():
+        body = spec.body(name)
+        body.inertia = np.asarray(body.inertia) * (mass / body.mass)
+        body.mass = mass
     gripper = robot.gripper
     if gripper.force is not None and gripper.actuator is not None:
         for name in (gripper.actuator, *gripper.extra_actuators):
