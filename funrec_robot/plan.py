@@ -499,7 +499,7 @@ def plan_interaction(
     if refusal is not None:
         raise PlanningError(f"part '{task.part}': {refusal}")
     if geometry.lift_range is not None:  # a torso or mast starts at the handle's height; the IK moves it on
-        robot = lifted(robot, geometry, handle_height(task))
+        robot = lifted(robot, geometry, handle_height(task), config.ik.limit_margin)
         geometry = measure_robot(robot)
     handle = _handle_path(robot, model, joint, task, geometry, target, start, config)
     lap("path")

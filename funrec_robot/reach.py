@@ -23,7 +23,8 @@ from funrec_robot.task import ArticulationTask
 LIFT_ABOVE_HANDLE_M = 0.1
 """A lift puts the shoulder this far above the handle (the arm pulls best from slightly above), m."""
 LIFT_MARGIN_M = 0.01
-"""... and stays this far inside its range (room for the whole-body IK to move it either way), m."""
+"""... and stays this far inside the range the whole-body IK keeps joints in (``IKConfig.limit_margin`` inside
+the lift's limits): a lift started within that margin made the IK's QP infeasible from its first step, m."""
 
 
 @dataclass(frozen=True)
@@ -72,13 +73,15 @@ def reach_refusal(robot: RobotDescription, geometry: RobotGeometry, task: Articu
     return band.sentence(robot, height)
 
 
-def lifted(robot: RobotDescription, geometry: RobotGeometry, height: float) -> RobotDescription:
+def lifted(robot: RobotDescription, geometry: RobotGeometry, height: float, limit_margin: float) -> RobotDescription:
     """The robot with its lift's home position putting the shoulder ``LIFT_ABOVE_HANDLE_M`` above a handle at
-    ``height`` (within the lift's range); the robot unchanged without a lift."""
+    ``height``, within the lift's range less ``limit_margin`` (the IK's) and ``LIFT_MARGIN_M``; the robot
+    unchanged without a lift."""
     if geometry.lift_range is None:
         return robot
     down, up = geometry.lift_range
-    move = float(np.clip(height + LIFT_ABOVE_HANDLE_M - geometry.p_base_shoulder[2], down + LIFT_MARGIN_M, up - LIFT_MARGIN_M))
+    inside = limit_margin + LIFT_MARGIN_M
+    move = float(np.clip(height + LIFT_ABOVE_HANDLE_M - geometry.p_base_shoulder[2], down + inside, up - inside))
     q_home: FloatArray = robot.q_home.copy()
     q_home[len(robot.base_joints)] += geometry.lift_sign * move
     postures = tuple(np.where(np.arange(robot.nq) == len(robot.base_joints), q_home, q) for q in robot.q_postures)
