@@ -427,136 +427,154 @@ class _Execution:
         return out
 
     def run(self, video: str | Path | None) -> CheckReport:
-        model, data, plan, cfg, robot = self.model, self.data, self.plan, self.config, self.robot
+        """Simulate the plan step by step (references, grasp attachment, control, judging) and report."""
         self._reset()
-        dt = model.opt.timestep
-        t_end = plan.duration + cfg.settle_time
-        grasp = plan.segment("grasp")
-        actuate_end = plan.segment("actuate").t_end
-        release = next((s for s in plan.segments if s.label == "release"), None)
-        closed = plan.grasp_command
-        failures: dict[str, Failure] = {}
-
-        def fail(criterion: str, t: float, detail: str) -> None:
-            failures.setdefault(criterion, Failure(criterion, t, detail))
-
-        collisions: list[tuple[float, str, str]] = []
-        engaged_at: float | None = None
-        grip_offset: float | None = None
-        attached = separating = False
-        peak = (0.0, 0.0)
-        max_v_ratio = 0.0
-        over_effort = np.zeros(robot.nq)
-        series: dict[str, list[float]] = {"t": [], "part_state": [], "handle_force": [], "grasp_error": []}
-        next_record = 0.0
-        recorder = None
-        if video is not None:
-            seen = np.concatenate([self.indices.bodies, subtree_bodies(model, self.part_body)])
-            p_end = _transform_point(self.T_sp, plan.p_world_grasp_target)
-            camera = check_camera(self.p_world_base, self.p_start, model, data, seen, [p_end])
-            recorder = FrameRecorder(model, camera, *cfg.video_size)
-        next_frame = 0.0
-        steps = int(np.ceil(t_end / dt))
-        for step in range(steps + 1):
+        dt = self.model.opt.timestep
+        self._grasp_segment = self.plan.segment("grasp")
+        self._actuate_end = self.plan.segment("actuate").t_end
+        self._release = next((s for s in self.plan.segments if s.label == "release"), None)
+        run = _Run(t_end=self.plan.duration + self.config.settle_time, over_effort=np.zeros(self.robot.nq),
+                   recorder=self._recorder(video))
+        for step in range(int(np.ceil(run.t_end / dt)) + 1):
             t = step * dt
-            q_ref = np.array([np.interp(t, plan.t, plan.q[:, j]) for j in range(robot.nq)])
-            qd_ref = np.array([np.interp(t, plan.t, plan.qd[:, j]) for j in range(robot.nq)]) if t <= plan.duration else np.zeros(robot.nq)
-            command = float(np.interp(t, plan.t, plan.gripper_command))
-            if t >= plan.release_start:
-                if grip_offset is None:
-                    grip_offset = release_offset(plan, self._gripper_stop())
-                command += grip_offset
-            if not attached and engaged_at is None and grasp.t_start <= t <= actuate_end and abs(command - closed) < 1e-6:
-                p = self._grasp_point()
-                if _point_box_distance(model, data, self.handle, p) <= cfg.engage_distance:
-                    self._engage()
-                    attached, engaged_at = True, t
-            if attached and release is not None and t >= plan.release_start and abs(command - closed - grip_offset) > 1e-6:
-                # The pads let go when they stop touching the handle: the attachment holds until the opening
-                # fingers are clear of it (the part then rests on them, if gravity pulls it that way).
-                clear = self._gripper_clear_of_part()
-                if clear or t >= release.t_end:
-                    data.eq_active[self.equalities] = 0
-                    attached = False
-                    separating = not clear
-                    if clear:
-                        self._set_grasp_contacts(False)
-            if separating and self._gripper_clear_of_part():
-                # Contacts come back only once the opening fingers no longer overlap the handle, else the
-                # penetration they resolve would shove the part.
-                self._set_grasp_contacts(False)
-                separating = False
-            wrench = self._handle_wrench(attached)
-            state = float(np.interp(t, plan.t, plan.part_state))
-            # Anti-windup: while a servo is saturated, yielding further would only load it more.
-            integrate = attached and cfg.compliant and not np.any(over_effort > 0.0)
-            q_offset = self.admittance.update(data, q_ref, wrench, dt, integrate, self._path_tangent(state))
-            ctrl = self.servos.command(q_ref + q_offset, qd_ref)
-            data.ctrl[self.indices.actuators] = ctrl
-            data.ctrl[self.indices.gripper_actuators] = command
-            if robot.gripper.actuator is None:
-                data.ctrl[self.indices.gripper_actuators] = command
-            mujoco.mj_step(model, data)
-
-            force = float(np.linalg.norm(wrench[:3]))
-            if force > peak[0]:
-                peak = (force, t)
-            q = data.qpos[self.indices.qpos]
-            qd = data.qvel[self.indices.dof]
-            ratio = np.abs(qd) / robot.v_max
-            max_v_ratio = max(max_v_ratio, float(ratio.max()))
-            if np.any(ratio > 1.0 + cfg.velocity_tolerance):
-                j = int(np.argmax(ratio))
-                fail("joint_velocity", t, f"{robot.joint_names[j]} at {qd[j]:.3f} (limit {robot.v_max[j]:.3f})")
-            low = q < robot.q_min - cfg.position_tolerance
-            high = q > robot.q_max + cfg.position_tolerance
-            if np.any(low | high):
-                j = int(np.flatnonzero(low | high)[0])
-                fail("joint_position", t, f"{robot.joint_names[j]} at {q[j]:.4f} outside [{robot.q_min[j]:.4f}, {robot.q_max[j]:.4f}]")
-            demanded = self.servos.demanded_force(ctrl, q, qd) + data.qfrc_gravcomp[self.indices.dof]
-            over = np.abs(demanded) > robot.effort_max
-            over_effort = np.where(over, over_effort + dt, 0.0)
-            if np.any(over_effort > cfg.effort_time):
-                j = int(np.argmax(over_effort))
-                fail("joint_effort", t, f"{robot.joint_names[j]} asked {demanded[j]:.1f} beyond {robot.effort_max[j]:.1f} for {cfg.effort_time} s")
-            T_part = _body_T(data, self.part_body)
-            p_handle = _transform_point(T_part, self.p_body)
-            bad = self._forbidden_contacts(p_handle)
-            if bad:
-                if "collision" not in failures:
-                    fail("collision", t, f"{bad[0][0]} touches {bad[0][1]}")
-                if len(collisions) < 20:
-                    collisions.extend((round(t, 4), r, s) for r, s in bad[: 20 - len(collisions)])
-            if t >= next_record:
-                series["t"].append(round(t, 4))
-                series["part_state"].append(round(float(data.qpos[self.qadr]), 5))
-                series["handle_force"].append(round(force, 3))
-                series["grasp_error"].append(round(float(np.linalg.norm(self._grasp_point() - p_handle)), 5))
-                next_record += cfg.record_every
-            if recorder is not None and t >= next_frame:
-                recorder.capture(data)
-                next_frame += 1.0 / cfg.video_fps
-        if recorder is not None:
-            recorder.close()
+            q_ref, qd_ref, command = self._references(t, run)
+            self._update_grasp(t, command, run)
+            wrench, ctrl = self._actuate(t, q_ref, qd_ref, command, run)
+            mujoco.mj_step(self.model, self.data)
+            self._judge(t, wrench, ctrl, run)
+        if run.recorder is not None:
+            run.recorder.close()
         self._set_grasp_contacts(False)
+        return self._report(run, video)
 
-        final = float(data.qpos[self.qadr])
+    def _recorder(self, video: str | Path | None) -> FrameRecorder | None:
+        """A frame recorder looking at the robot, the part and the handle's target, if a video is asked for."""
+        if video is None:
+            return None
+        seen = np.concatenate([self.indices.bodies, subtree_bodies(self.model, self.part_body)])
+        p_end = _transform_point(self.T_sp, self.plan.p_world_grasp_target)
+        camera = check_camera(self.p_world_base, self.p_start, self.model, self.data, seen, [p_end])
+        return FrameRecorder(self.model, camera, *self.config.video_size)
+
+    def _references(self, t: float, run: _Run) -> tuple[FloatArray, FloatArray, float]:
+        """The plan at time t: joint positions, velocities (zero after its end) and the gripper command, the
+        latter moved by where the fingers stopped on the handle once the release starts."""
+        plan, nq = self.plan, self.robot.nq
+        q_ref = np.array([np.interp(t, plan.t, plan.q[:, j]) for j in range(nq)])
+        qd_ref = np.array([np.interp(t, plan.t, plan.qd[:, j]) for j in range(nq)]) if t <= plan.duration else np.zeros(nq)
+        command = float(np.interp(t, plan.t, plan.gripper_command))
+        if t >= plan.release_start:
+            if run.grip_offset is None:
+                run.grip_offset = release_offset(plan, self._gripper_stop())
+            command += run.grip_offset
+        return q_ref, qd_ref, command
+
+    def _update_grasp(self, t: float, command: float, run: _Run) -> None:
+        """Engage the attachment when the closed gripper is at the handle; let go when the opening fingers are
+        clear of it (or the release ends); give the gripper its contacts with the part back once clear."""
+        plan, data, release = self.plan, self.data, self._release
+        closed = plan.grasp_command
+        if not run.attached and run.engaged_at is None and self._grasp_segment.t_start <= t <= self._actuate_end and abs(command - closed) < 1e-6:
+            p = self._grasp_point()
+            if _point_box_distance(self.model, data, self.handle, p) <= self.config.engage_distance:
+                self._engage()
+                run.attached, run.engaged_at = True, t
+        if run.attached and release is not None and t >= plan.release_start and abs(command - closed - run.grip_offset) > 1e-6:
+            # The pads let go when they stop touching the handle: the attachment holds until the opening
+            # fingers are clear of it (the part then rests on them, if gravity pulls it that way).
+            clear = self._gripper_clear_of_part()
+            if clear or t >= release.t_end:
+                data.eq_active[self.equalities] = 0
+                run.attached = False
+                run.separating = not clear
+                if clear:
+                    self._set_grasp_contacts(False)
+        if run.separating and self._gripper_clear_of_part():
+            # Contacts come back only once the opening fingers no longer overlap the handle, else the
+            # penetration they resolve would shove the part.
+            self._set_grasp_contacts(False)
+            run.separating = False
+
+    def _actuate(self, t: float, q_ref: FloatArray, qd_ref: FloatArray, command: float, run: _Run) -> tuple[FloatArray, FloatArray]:
+        """Set the servo and gripper commands for this step (admittance on the handle wrench); returns the
+        wrench and the servo commands."""
+        data, cfg = self.data, self.config
+        wrench = self._handle_wrench(run.attached)
+        state = float(np.interp(t, self.plan.t, self.plan.part_state))
+        # Anti-windup: while a servo is saturated, yielding further would only load it more.
+        integrate = run.attached and cfg.compliant and not np.any(run.over_effort > 0.0)
+        q_offset = self.admittance.update(data, q_ref, wrench, self.model.opt.timestep, integrate, self._path_tangent(state))
+        ctrl = self.servos.command(q_ref + q_offset, qd_ref)
+        data.ctrl[self.indices.actuators] = ctrl
+        data.ctrl[self.indices.gripper_actuators] = command
+        if self.robot.gripper.actuator is None:
+            data.ctrl[self.indices.gripper_actuators] = command
+        return wrench, ctrl
+
+    def _judge(self, t: float, wrench: FloatArray, ctrl: FloatArray, run: _Run) -> None:
+        """After a step: peak force, joint velocity, position and effort limits, forbidden contacts; the time
+        series and the video frame."""
+        data, cfg, robot = self.data, self.config, self.robot
+        force = float(np.linalg.norm(wrench[:3]))
+        if force > run.peak[0]:
+            run.peak = (force, t)
+        q = data.qpos[self.indices.qpos]
+        qd = data.qvel[self.indices.dof]
+        ratio = np.abs(qd) / robot.v_max
+        run.max_v_ratio = max(run.max_v_ratio, float(ratio.max()))
+        if np.any(ratio > 1.0 + cfg.velocity_tolerance):
+            j = int(np.argmax(ratio))
+            run.fail("joint_velocity", t, f"{robot.joint_names[j]} at {qd[j]:.3f} (limit {robot.v_max[j]:.3f})")
+        low = q < robot.q_min - cfg.position_tolerance
+        high = q > robot.q_max + cfg.position_tolerance
+        if np.any(low | high):
+            j = int(np.flatnonzero(low | high)[0])
+            run.fail("joint_position", t, f"{robot.joint_names[j]} at {q[j]:.4f} outside [{robot.q_min[j]:.4f}, {robot.q_max[j]:.4f}]")
+        demanded = self.servos.demanded_force(ctrl, q, qd) + data.qfrc_gravcomp[self.indices.dof]
+        over = np.abs(demanded) > robot.effort_max
+        run.over_effort = np.where(over, run.over_effort + self.model.opt.timestep, 0.0)
+        if np.any(run.over_effort > cfg.effort_time):
+            j = int(np.argmax(run.over_effort))
+            run.fail("joint_effort", t, f"{robot.joint_names[j]} asked {demanded[j]:.1f} beyond {robot.effort_max[j]:.1f} for {cfg.effort_time} s")
+        T_part = _body_T(data, self.part_body)
+        p_handle = _transform_point(T_part, self.p_body)
+        bad = self._forbidden_contacts(p_handle)
+        if bad:
+            if "collision" not in run.failures:
+                run.fail("collision", t, f"{bad[0][0]} touches {bad[0][1]}")
+            if len(run.collisions) < 20:
+                run.collisions.extend((round(t, 4), r, s) for r, s in bad[: 20 - len(run.collisions)])
+        if t >= run.next_record:
+            run.series["t"].append(round(t, 4))
+            run.series["part_state"].append(round(float(data.qpos[self.qadr]), 5))
+            run.series["handle_force"].append(round(force, 3))
+            run.series["grasp_error"].append(round(float(np.linalg.norm(self._grasp_point() - p_handle)), 5))
+            run.next_record += cfg.record_every
+        if run.recorder is not None and t >= run.next_frame:
+            run.recorder.capture(data)
+            run.next_frame += 1.0 / cfg.video_fps
+
+    def _report(self, run: _Run, video: str | Path | None) -> CheckReport:
+        """The end-of-run criteria (target reached, peak force, grasp engaged) and the report."""
+        model, cfg = self.model, self.config
+        final = float(self.data.qpos[self.qadr])
         error = abs(final - self.target_state)
-        tolerance = cfg.revolute_tolerance if model.jnt_type[self.joint] == mujoco.mjtJoint.mjJNT_HINGE else cfg.prismatic_tolerance
-        unit = "rad" if model.jnt_type[self.joint] == mujoco.mjtJoint.mjJNT_HINGE else "m"
+        hinge = model.jnt_type[self.joint] == mujoco.mjtJoint.mjJNT_HINGE
+        tolerance = cfg.revolute_tolerance if hinge else cfg.prismatic_tolerance
+        unit = "rad" if hinge else "m"
         if error > tolerance and self._fell_to_stop(final):
             log.info("part '%s' was let go to fall and came to rest at its stop %.4f %s, beyond the planned %.4f",
                      self.joint_name, final, unit, self.target_state)
         elif error > tolerance:
-            fail("target", t_end, f"joint '{self.joint_name}' ended at {final:.4f} {unit}, target {self.target_state:.4f} (error {error:.4f} > {tolerance:.4f})")
-        if cfg.max_handle_force is not None and peak[0] > cfg.max_handle_force:
-            fail("handle_force", peak[1], f"peak handle force {peak[0]:.1f} N > {cfg.max_handle_force:.1f} N")
-        if engaged_at is None:
-            fail("grasp", grasp.t_end, f"the gripper never closed within {cfg.engage_distance} m of the handle")
+            run.fail("target", run.t_end, f"joint '{self.joint_name}' ended at {final:.4f} {unit}, target {self.target_state:.4f} (error {error:.4f} > {tolerance:.4f})")
+        if cfg.max_handle_force is not None and run.peak[0] > cfg.max_handle_force:
+            run.fail("handle_force", run.peak[1], f"peak handle force {run.peak[0]:.1f} N > {cfg.max_handle_force:.1f} N")
+        if run.engaged_at is None:
+            run.fail("grasp", self.plan.segment("grasp").t_end, f"the gripper never closed within {cfg.engage_distance} m of the handle")
         video_path = None
-        if recorder is not None:
-            video_path = str(write_video(video, recorder.frames, cfg.video_fps))
-        ordered = tuple(sorted(failures.values(), key=lambda f: (f.time, CRITERIA.index(f.criterion))))
+        if run.recorder is not None:
+            video_path = str(write_video(video, run.recorder.frames, cfg.video_fps))
+        ordered = tuple(sorted(run.failures.values(), key=lambda f: (f.time, CRITERIA.index(f.criterion))))
         return CheckReport(
             passed=not ordered,
             failures=ordered,
@@ -565,15 +583,41 @@ class _Execution:
             target_state=self.target_state,
             final_state=final,
             target_error=error,
-            peak_handle_force=peak[0],
-            peak_handle_force_time=peak[1],
-            grasp_engaged_time=engaged_at,
-            collisions=tuple(collisions),
-            max_velocity_ratio=max_v_ratio,
-            simulated_time=t_end,
-            series=series,
+            peak_handle_force=run.peak[0],
+            peak_handle_force_time=run.peak[1],
+            grasp_engaged_time=run.engaged_at,
+            collisions=tuple(run.collisions),
+            max_velocity_ratio=run.max_v_ratio,
+            simulated_time=run.t_end,
+            series=run.series,
             video=video_path,
         )
+
+
+@dataclass
+class _Run:
+    """What one simulated run accumulates step by step (mutable: it is the loop's state)."""
+
+    t_end: float
+    """Simulated duration, s."""
+    over_effort: FloatArray
+    """(nq,) how long each servo has been asking more than its effort limit, s."""
+    recorder: FrameRecorder | None = None
+    failures: dict[str, Failure] = field(default_factory=dict)
+    collisions: list[tuple[float, str, str]] = field(default_factory=list)
+    engaged_at: float | None = None
+    grip_offset: float | None = None
+    attached: bool = False
+    separating: bool = False
+    peak: tuple[float, float] = (0.0, 0.0)
+    max_v_ratio: float = 0.0
+    series: dict[str, list[float]] = field(default_factory=lambda: {"t": [], "part_state": [], "handle_force": [], "grasp_error": []})
+    next_record: float = 0.0
+    next_frame: float = 0.0
+
+    def fail(self, criterion: str, t: float, detail: str) -> None:
+        """Record a violated criterion (its first occurrence only)."""
+        self.failures.setdefault(criterion, Failure(criterion, t, detail))
 
 
 GRAVITY_TILT_TOLERANCE = float(np.deg2rad(2.0))

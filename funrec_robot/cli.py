@@ -342,6 +342,46 @@ def _add_replay(sub: Any) -> None:
     p.set_defaults(handler=_cmd_replay)
 
 
+def _cmd_reach(args: argparse.Namespace) -> int:
+    from funrec_robot.catalog import resolve_robot
+    from funrec_robot.reach import reach_table
+
+    names, rows = reach_table(args.scene, [resolve_robot(r) for r in args.robot])
+    width = max(8, *(len(n) for n in names))
+    print(f"{'part':10s} {'handle':>7s}  " + "  ".join(f"{n:{width}s}" for n in names))
+    for row in rows:
+        cells = "  ".join(f"{'yes' if r is None else 'no':{width}s}" for r in row.refusals)
+        print(f"{row.part:10s} {row.height:6.2f}m  {cells}")
+    for row in rows:
+        for name, why in zip(names, row.refusals):
+            if why is not None:
+                print(f"{row.part} / {name}: {why}")
+    return 0
+
+
+def _add_reach(sub: Any) -> None:
+    p = sub.add_parser(
+        "reach",
+        help="tabulate which robots can reach which parts of a scene",
+        description="For every part of SCENE (twin folder, gt/ or capture folder, or their MJCF) and every robot, "
+        "whether the handle lies within the heights the robot's hand reaches (arm, lift or torso range); the "
+        "planner refuses the others at once with the sentence printed here.",
+    )
+    p.add_argument("scene", help="scene: twin folder, gt/ or capture folder, or their MJCF file")
+    p.add_argument("--robot", nargs="+", default=[_default_robot()], help="robot YAML files or names (default: %(default)s)")
+    p.set_defaults(handler=_cmd_reach)
+
+
+class _ModelsFolder(argparse.Action):
+    """``--models DIR``: the robot models folder robot files name as ``models://`` (sets FUNREC_ROBOT_MODELS)."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any, option_string: str | None = None) -> None:
+        from funrec_robot.robot_yaml import MODELS_ENV
+
+        os.environ[MODELS_ENV] = str(values)
+        setattr(namespace, self.dest, values)
+
+
 def _add_send(sub: Any) -> None:
     p = sub.add_parser(
         "send",
@@ -411,6 +451,7 @@ def _add_keys(sub: Any) -> None:
 
 _COMMANDS: tuple[Callable[[Any], None], ...] = (
     _add_robots, _add_describe, _add_plan, _add_check, _add_bench, _add_replay, _add_send, _add_serve_sim, _add_estop, _add_keys,
+    _add_reach,
 )
 
 
@@ -421,6 +462,9 @@ def build_parser() -> argparse.ArgumentParser:
         "their interactions with articulated parts and check the plans in simulation.",
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="log detail and show tracebacks of errors")
+    parser.add_argument("--models", action=_ModelsFolder, metavar="DIR",
+                        help="folder of third-party robot models that robot files name as models://... "
+                        "(default: the environment variable FUNREC_ROBOT_MODELS)")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for add in _COMMANDS:
         add(sub)

@@ -11,7 +11,7 @@ def robot_summary(robot: RobotDescription) -> str:
     """One line: name, planning DoF split into base and arm, base type, gripper DoF."""
     return (
         f"{robot.name}: {robot.nq} DoF ({len(robot.base_joints)} base, {len(robot.arm_joints)} arm), "
-        f"base {robot.base_type}, gripper {len(robot.gripper.joints)} finger joints"
+        f"base {robot.base_type}{' (differential drive)' if robot.drive == 'differential' else ''}, gripper {len(robot.gripper.joints)} finger joints"
     )
 
 

@@ -11,16 +11,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from funrec.typed import FloatArray
-from funrec_robot.robot import RobotDescription
-from funrec_robot.robot_geometry import RobotGeometry
-from funrec_robot.task import (
-    ArticulationTask,
+from funrec_robot.grasp_frames import (
     T_world_grasp_canonical,
     T_world_grasp_path,
     grasp_free_axis,
     roll_to_hold,
     rotation_about_grasp_axis,
 )
+from funrec_robot.robot import RobotDescription
+from funrec_robot.robot_geometry import RobotGeometry
+from funrec_robot.task import ArticulationTask
 
 
 @dataclass(frozen=True)
@@ -104,23 +104,24 @@ def opening_commands(
     part of the handle's depth), then half its thickness minus the squeeze. When the thickness is unknown the
     fingers open as for ``unknown_handle_width`` (not fully: open fingers sweep into the front and plinth
     below a low handle) and close fully, stopping on the handle."""
-    low, high = sorted((robot.gripper.closed, robot.gripper.open))
+    gripper = robot.gripper
+    low, high = sorted((gripper.closed, gripper.open))
     if task.handle_width is None:
-        return float(np.clip(config.unknown_handle_width / 2 + config.grip_margin, low, high)), robot.gripper.closed
+        return float(np.clip(gripper.command(config.unknown_handle_width / 2 + config.grip_margin), low, high)), gripper.closed
     depth = task.handle_width if task.handle_depth is None else task.handle_depth
     across = task.handle_width * np.cos(tilt) + depth * abs(np.sin(tilt))
-    opening = float(np.clip(across / 2 + config.grip_margin, low, high))
-    holding = float(np.clip(task.handle_width / 2 - config.grip_squeeze, low, high))
+    opening = float(np.clip(gripper.command(across / 2 + config.grip_margin), low, high))
+    holding = float(np.clip(gripper.command(task.handle_width / 2 - config.grip_squeeze), low, high))
     return opening, holding
 
 
 def release_command(robot: RobotDescription, holding: float, config: GraspConfig) -> float:
     """Gripper command on letting go: ``release_gap`` looser than holding, no wider. A grasp rolled against the
     part's front has a finger close to it; opening wide would push the part away."""
-    low, high = sorted((robot.gripper.closed, robot.gripper.open))
-    looser = config.grip_squeeze + config.release_gap
-    wider = holding + looser if robot.gripper.open >= robot.gripper.closed else holding - looser
-    return float(np.clip(wider, low, high))
+    gripper = robot.gripper
+    low, high = sorted((gripper.closed, gripper.open))
+    looser = gripper.command(config.grip_squeeze + config.release_gap) - gripper.closed
+    return float(np.clip(holding + looser, low, high))
 
 
 def grasp_depth(

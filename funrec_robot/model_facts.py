@@ -6,12 +6,13 @@ Ranges come from the compiled model, so an MJCF written in degrees is read in ra
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import mujoco
 import numpy as np
 
 from funrec_robot.errors import RobotDescriptionError, UnknownNameError, format_names
-from funrec_robot.robot_yaml import RobotFile
+from funrec_robot.robot_yaml import PLANAR_JOINTS, RobotFile
 
 AXIS_TOLERANCE = 1e-6
 """Largest deviation of a unit axis from the expected one (base axes, orthogonal grasp axes)."""
@@ -87,6 +88,37 @@ class ModelFacts:
         return kind in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
 
 
+def robot_spec(
+    model_path: Path, root_body: str, planar_base: bool = False, ee_body: str | None = None, ee_site: str = ""
+) -> mujoco.MjSpec:
+    """The model file as an MjSpec, with what a robot YAML adds to it: for ``planar_base`` the root body's free
+    joint replaced by slides along its x and y and a hinge about its z (``PLANAR_JOINTS``; the file's
+    keyframes, sized for the free joint, are dropped), and for ``ee_body`` a site ``ee_site`` at that body's
+    origin.
+
+    Raises:
+        ValueError: MuJoCo cannot load the file, or the root body has no free joint to replace.
+    """
+    spec = mujoco.MjSpec.from_file(str(model_path))
+    if planar_base:
+        root = spec.body(root_body)
+        free = [j for j in root.joints if j.type == mujoco.mjtJoint.mjJNT_FREE]
+        if not free:
+            raise ValueError(f"base.planar: root body '{root_body}' has no free joint to replace")
+        spec.delete(free[0])
+        for key in list(spec.keys):
+            spec.delete(key)
+        for (motion, name), axis in zip(PLANAR_JOINTS.items(), np.eye(3)):
+            kind = mujoco.mjtJoint.mjJNT_HINGE if motion == "yaw" else mujoco.mjtJoint.mjJNT_SLIDE
+            root.add_joint(name=name, type=kind, axis=axis)
+    if ee_body is not None:
+        body = spec.body(ee_body)
+        if body is None:
+            raise ValueError(f"ee.body: no body '{ee_body}'")
+        body.add_site(name=ee_site, size=[0.01, 0.01, 0.01])
+    return spec
+
+
 def _compile(file: RobotFile) -> mujoco.MjModel:
     try:
         return mujoco.MjModel.from_xml_path(str(file.model))
@@ -118,6 +150,13 @@ def read_model_facts(file: RobotFile) -> ModelFacts:
     """
     model = _compile(file)
     root = _root_body(file, model)
+    if file.planar_base or file.ee_body is not None:
+        name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, root)
+        try:
+            model = robot_spec(file.model, name, file.planar_base, file.ee_body, file.ee_site).compile()
+        except ValueError as exc:
+            raise RobotDescriptionError(file.path, f"model: {exc}") from exc
+        root = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)
     bodies = {root}
     for body in range(root + 1, model.nbody):  # MuJoCo numbers bodies depth-first: parents come first
         if int(model.body_parentid[body]) in bodies:
@@ -167,4 +206,4 @@ def check_base_axes(facts: ModelFacts) -> None:
             )
 
 
-__all__ = ["AXIS_TOLERANCE", "ModelFacts", "check_base_axes", "object_names", "read_model_facts"]
+__all__ = ["AXIS_TOLERANCE", "ModelFacts", "check_base_axes", "object_names", "read_model_facts", "robot_spec"]

@@ -10,7 +10,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import mujoco
@@ -25,14 +25,12 @@ from funrec_robot.feasibility import (
     first_blocked_state,
     resting_force,
 )
-from funrec_robot.grasp import (
-    GraspConfig,
-    grasp_candidates,
-    release_command,
-)
-from funrec_robot.ik import IKConfig
+from funrec_robot.grasp import grasp_candidates, release_command
+from funrec_robot.grasp_frames import T_world_grasp_canonical, grasp_free_axis
+from funrec_robot.plan_config import PlanConfig
 from funrec_robot.plan_file import Plan, Segment, sha256_file
-from funrec_robot.retime import RetimeConfig, Trajectory, point_to_point, retime_path
+from funrec_robot.reach import handle_height, lifted, reach_refusal
+from funrec_robot.retime import Trajectory, point_to_point, retime_path
 from funrec_robot.robot import RobotDescription, load_robot
 from funrec_robot.robot_geometry import RobotGeometry, measure_robot
 from funrec_robot.scene import (
@@ -44,16 +42,10 @@ from funrec_robot.scene import (
     static_footprint,
 )
 from funrec_robot.sim_model import build_mujoco_model
-from funrec_robot.task import (
-    ArticulationTask,
-    T_world_grasp_canonical,
-    grasp_free_axis,
-    path_states,
-    resolve_target,
-)
+from funrec_robot.task import ArticulationTask, path_states, resolve_target
 from funrec_robot.task_bounds import check_task_bounds
 from funrec_robot.task_sources import load_task, locate_scene
-from funrec_robot.trajopt import BasePlacement, PlacementConfig, PlacementProblem, place_base
+from funrec_robot.trajopt import BasePlacement, PlacementProblem, place_base
 from funrec_robot.whole_body import whole_body_configurations
 
 log = logging.getLogger(__name__)
@@ -65,95 +57,6 @@ drop-down doors (the arm is stretched out sideways as well as down)."""
 
 PLANNER_VERSION = "funrec_robot.plan/1"
 """Written into every plan's provenance."""
-
-
-@dataclass(frozen=True)
-class PlanConfig:
-    """Settings of interaction planning (nested: placement, IK, timing, grasp)."""
-
-    placement: PlacementConfig = field(default_factory=PlacementConfig)
-    """Base placement."""
-    ik: IKConfig = field(default_factory=IKConfig)
-    """Whole-body IK."""
-    retime: RetimeConfig = field(default_factory=RetimeConfig)
-    """Time parametrisation."""
-    grasp: GraspConfig = field(default_factory=GraspConfig)
-    """Grasp geometry."""
-    pregrasp_distance: float = 0.10
-    """The gripper comes onto the handle along the approach from this far out, m."""
-    retreat_distance: float = 0.12
-    """... and leaves it along the approach by this much (or as far as it can, see ``min_retreat_clearance``), m."""
-    end_margin_rad: float = float(np.deg2rad(3.0))
-    """'open' and 'close' stop this short of a revolute part's range ends (never drive it into its stop), rad."""
-    end_margin_m: float = 0.02
-    """... and this short of a prismatic part's, m."""
-    pregrasp_dwell: float = 0.3
-    """Pause at the pre-grasp pose so that the servos settle before the last approach, s."""
-    effort_share_damping: float = 0.5
-    """Share of a joint's effort limit its simulated damping may take at the planned speed."""
-    effort_share_inertia: float = 0.3
-    """Share of a joint's effort limit its armature may take at the planned acceleration."""
-    gravity_effort_share: float = 0.9
-    """Share of a joint's effort limit gravity may take anywhere along the handle path (the rest tracks)."""
-    approach_scale: float = 0.6
-    """Fraction of the speed and acceleration limits used to reach the pre-grasp pose (the servos then track
-    within their effort limits, and within a centimetre)."""
-    final_approach_scale: float = 0.3
-    """Fraction of the speed and acceleration limits used from pre-grasp to grasp (a slow, precise move)."""
-    handle_speed: float = 0.3
-    """Largest speed of the handle while actuating, m/s."""
-    handle_acceleration: float = 0.3
-    """Largest acceleration of the handle along its path while actuating, m/s^2."""
-    via_distance: float = 0.25
-    """When the direct approach collides, the gripper first goes to this far out along the approach, m."""
-    via_position_tolerance: float = 0.03
-    """Largest IK residual accepted at the approach's via pose (free space), m."""
-    retreat_step: float = 0.01
-    """The retreat is solved in steps of this length along the approach, stopping where the IK cannot follow, m."""
-    min_retreat_clearance: float = 0.01
-    """A retreat cut short is kept if it leaves the handle at least this far beyond the fingertips, m."""
-    refine_tolerance: float = 0.002
-    """A waypoint is added where the grasp point between two IK waypoints strays this far from the path, m."""
-    refine_passes: int = 3
-    """Rounds of adding such waypoints."""
-    max_base_stops: int = 3
-    """Most base stops tried (1, 2, ... until base placement succeeds)."""
-    track_position_tolerance: float = 0.005
-    """Largest IK residual accepted along the handle path, m."""
-    track_orientation_tolerance: float = float(np.deg2rad(3.0))
-    """Largest IK orientation residual accepted along the handle path, rad."""
-    gripper_time: float = 0.5
-    """Duration of opening or closing the gripper, s."""
-    grasp_settle_time: float = 0.3
-    """Pause after closing and after opening the gripper, s."""
-    release_hold_time: float = 0.8
-    """Pause holding the handle at the target before opening the gripper (the part comes to rest), s."""
-    free_range_step: float = float(np.deg2rad(0.5))
-    """Step of the scan for where a revolute part first runs into the rest of the scene ('open' and 'close'
-    stop ``end_margin`` short of it as of a joint stop), rad."""
-    free_range_step_m: float = 0.002
-    """The same step for prismatic parts, m."""
-    demo_min_step_rad: float = float(np.deg2rad(2.0))
-    """Demonstrated states closer than this to the previous kept one are dropped from the path, rad."""
-    demo_min_step_m: float = 0.01
-    """The same for prismatic parts, m."""
-    time_budget: float = 10.0
-    """Planning stops trying further grasp tilts and base stops after this much CPU time, s (CPU, not wall
-    time: on a loaded machine a wall-clock budget cut attempts and the same plan failed or passed by load)."""
-    footprint_radius: float = 2.5
-    """Furniture within this distance of the handle path enters base placement, m."""
-    falling_retreat_scale: float = 0.2
-    """Speed of the retreat from a part let go to fall open (a drop-down door beyond the arm's reach), as a
-    fraction of the usual: it rests on a finger until the hand has slid off the bar along it."""
-    fall_sweep_margin: float = float(np.deg2rad(15.0))
-    """The base keeps clear of a part let go to fall over this much beyond the state it is expected to come to
-    rest at (a twin's range is the demonstrated one; the real stop may lie further), rad."""
-    fall_rest_force: float = 25.0
-    """Such a part is let go no further than where its weight presses on the finger it rests on with this
-    force, N: the hand then slides off the bar against as much friction again (mu ~ 1), well below the
-    handle force bound (50 N) and the wrist's effort limits."""
-
-
 
 
 def _placement_problem(
@@ -275,50 +178,38 @@ def _gripper_move(
     return _hold(q, (len(values) - 1) * config.retime.dt, config.retime.dt), values
 
 
-def plan_interaction(
-    robot: RobotDescription,
-    scene_xml: str | Path,
-    task: ArticulationTask,
-    target: str | float = "open",
-    start: float | None = None,
-    config: PlanConfig = PlanConfig(),
-    model: mujoco.MjModel | None = None,
-) -> Plan:
-    """Plan a mobile manipulator opening (or closing) one articulated part of a scene.
+@dataclass(frozen=True)
+class _HandlePath:
+    """The states the handle is to be carried through, after the target was resolved and capped."""
 
-    Args:
-        robot: the robot.
-        scene_xml: MJCF scene the task is expressed in (its world frame is the task's).
-        task: the part and its joint, grasp and range (see ``task_sources``).
-        target: 'open', 'close', 'demo' or a joint state (rad or m).
-        start: the part's state when the robot arrives; default ``task.state_current``.
-        config: settings.
-        model: ``build_mujoco_model(robot, scene_xml)`` if already built.
+    states: FloatArray
+    """(N,) part states along the handle path, rad or m."""
+    start_state: float
+    """The part's state when the robot arrives."""
+    target_state: float
+    """Where the hand lets go."""
+    final_state: float | None
+    """Where the part comes to rest after release, if not where the hand lets go (a part let go to fall)."""
+    demo: bool
+    """The path is the demonstration's."""
+    capped: tuple[float, str] | None
+    """(state, scene geom) where the part first runs into the scene on the way, if it does."""
+    reach_capped: dict | None
+    """The state the arm's reach capped the target at, and the requested one (recorded in the plan)."""
+    config: PlanConfig
+    """The settings, with the grasp's fall state set for a part let go to fall."""
+    candidates: list
+    """Grasp candidates along ``states`` (``grasp.grasp_candidates``), best first."""
 
-    Returns:
-        The timed plan, starting with the base at its first stop and the arm at home, gripper open.
 
-    Raises:
-        PlanningError: naming the step that failed (base placement, IK at a path state, timing).
-    """
-    clock = time.perf_counter()
-    cpu_started = time.process_time()
-    timings: dict[str, float] = {}
-
-    def lap(name: str) -> None:
-        nonlocal clock
-        now = time.perf_counter()
-        timings[name] = round(now - clock, 4)
-        clock = now
-
-    model = build_mujoco_model(robot, scene_xml) if model is None else model
-    lap("model")
-    joint = part_joint(model, task.part)
-    geometry = measure_robot(robot)
+def _requested_states(
+    task: ArticulationTask, model: mujoco.MjModel, joint: int, target: str | float, start: float | None, config: PlanConfig
+) -> tuple[FloatArray, float, float, bool, tuple[float, str] | None]:
+    """Path states from the start to the target, the target stopped short of the range ends and of where the
+    part first runs into the scene; returns states, start, target, demo, and where it was blocked."""
     start_state = task.state_current if start is None else float(start)
     target_state = resolve_target(task, target)
     check_task_bounds(task, start_state, target_state)
-    final_state = None  # where the part comes to rest after release, if not where the hand lets go
     capped = None
     if isinstance(target, str) and target.strip().lower() in ("open", "close"):
         margin = config.end_margin_rad if task.joint_type == "revolute" else config.end_margin_m
@@ -336,12 +227,27 @@ def plan_interaction(
         states = _demo_states(task, start_state, config)
     else:
         states = path_states(task, start_state, target_state, T_world_grasp_canonical(task))
-    lap("path")
+    return states, start_state, target_state, demo, capped
 
-    attempts = sorted(
-        ((bases, rank) for bases in range(1, config.max_base_stops + 1) for rank in range(len(config.grasp.tilts))),
-        key=lambda attempt: attempt[0] + 0.6 * attempt[1],
-    )
+
+def _handle_path(
+    robot: RobotDescription,
+    model: mujoco.MjModel,
+    joint: int,
+    task: ArticulationTask,
+    geometry: RobotGeometry,
+    target: str | float,
+    start: float | None,
+    config: PlanConfig,
+) -> _HandlePath:
+    """The handle path and its grasp candidates; 'open' / 'close' beyond the arm's reach are cut to where it
+    reaches (a part gravity carries on from there is let go to fall).
+
+    Raises:
+        PlanningError: no grasp tilt keeps the handle path within the arm's vertical reach.
+    """
+    states, start_state, target_state, demo, capped = _requested_states(task, model, joint, target, start, config)
+    final_state = None  # where the part comes to rest after release, if not where the hand lets go
     r_max = geometry.reach * config.placement.r_max_fraction
     candidates = grasp_candidates(robot, task, states, geometry, r_max, config.grasp)
     reach_capped = None
@@ -375,8 +281,38 @@ def plan_interaction(
             f"part '{task.part}': the handle path leaves the arm's vertical reach from the shoulder "
             f"({geometry.p_base_shoulder[2]:.2f} m high) whatever the grasp tilt"
         )
+    return _HandlePath(states, start_state, target_state, final_state, demo, capped, reach_capped, config, candidates)
+
+
+def _search(
+    robot: RobotDescription,
+    model: mujoco.MjModel,
+    joint: int,
+    task: ArticulationTask,
+    geometry: RobotGeometry,
+    handle: _HandlePath,
+    cpu_started: float,
+) -> dict:
+    """Try base stops (1, 2, ...) and grasp tilts, cheapest first, until base placement and whole-body IK
+    succeed or the CPU time budget is spent; a gravity overload moves on to the robot's next home posture,
+    then to unloading the arm, then to grasps that point the gripper down.
+
+    Returns ``whole_body_configurations``' solution.
+
+    Raises:
+        PlanningError: the error of the furthest step reached (IK beats base placement).
+    """
+    config, candidates, states = handle.config, handle.candidates, handle.states
+    # A differential-drive base cannot follow the sideways steps between stops: it stands at one stop.
+    max_stops = 1 if robot.drive == "differential" else config.max_base_stops
+    # Each stop serves at least one path state: a short path (a part barely opened, a twin's small range) with
+    # more stops than states left a stop without states, and an IndexError reached the user.
+    max_stops = min(max_stops, len(states))
+    attempts = sorted(
+        ((bases, rank) for bases in range(1, max_stops + 1) for rank in range(len(config.grasp.tilts))),
+        key=lambda attempt: attempt[0] + 0.6 * attempt[1],
+    )
     errors: list[tuple[int, PlanningError]] = []
-    solution = None
     # (base stops, grasp rank, unload the arm, base placement to reuse)
     pending: list[tuple[int, int, bool, BasePlacement | None]] = [
         (bases, rank, False, None) for bases, rank in attempts if rank < len(candidates)
@@ -386,15 +322,15 @@ def plan_interaction(
         bases, rank, unload, placement = pending.pop(0)
         grasp = candidates[rank]
         if placement is None:
-            problem = _placement_problem(robot, model, joint, geometry, grasp.frames, states, bases, config, final_state)
+            problem = _placement_problem(robot, model, joint, geometry, grasp.frames, states, bases, config, handle.final_state)
             try:
                 placement = place_base(problem, config.placement)
             except PlanningError as exc:
                 errors.append((0, exc))
                 continue
         try:
-            solution = whole_body_configurations(robot, model, joint, task, grasp, states, placement, target_state,
-                                                 geometry.fingertip_depth, config, unload)
+            return whole_body_configurations(robot, model, joint, task, grasp, states, placement, handle.target_state,
+                                             geometry.fingertip_depth, config, unload)
         except GravityOverload as exc:
             errors.append((1, exc))
             if postures:  # the robot's next home posture may hold the gripper with less load on the wrist
@@ -411,18 +347,21 @@ def plan_interaction(
         except PlanningError as exc:
             errors.append((1, exc))
             continue
-        break
-    if solution is None:
-        if not errors:
-            raise PlanningError(f"part '{task.part}': planning time budget exhausted")
-        furthest = max(stage for stage, _ in errors)
-        raise [exc for stage, exc in errors if stage == furthest][-1]
-    lap("placement_ik")
-    flip, path, configs, tracked = solution["flip"], solution["path"], solution["configs"], solution["tracked"]
-    states = solution["states"]
-    grasp = solution["grasp"]
-    depth, opening, holding = grasp.depth, grasp.opening, grasp.holding
+    if not errors:
+        raise PlanningError(f"part '{task.part}': planning time budget exhausted")
+    furthest = max(stage for stage, _ in errors)
+    raise [exc for stage, exc in errors if stage == furthest][-1]
 
+
+def _timed(
+    robot: RobotDescription, model: mujoco.MjModel, task: ArticulationTask, handle: _HandlePath, solution: dict
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, tuple[Segment, ...]]:
+    """Time the solved configurations: approach (ruckig, slow at the end), grasp, actuate (toppra along the
+    handle path), release, retreat; returns t, q, qd, gripper command, part state and the segments."""
+    config = handle.config
+    path, configs, states, grasp = solution["path"], solution["configs"], solution["states"], solution["grasp"]
+    opening, holding = grasp.opening, grasp.holding
+    start_state, target_state = handle.start_state, handle.target_state
     v, a = dynamic_limits(robot, model, config.effort_share_damping, config.effort_share_inertia)
     rc = config.retime
     moves = list(zip(configs["approach"][:-1], configs["approach"][1:]))
@@ -441,14 +380,14 @@ def plan_interaction(
         np.concatenate([a, [config.handle_acceleration / radius]]),
         rc,
     )
-    if demo and task.demo_times.size and actuate.duration < float(task.demo_times[-1] - task.demo_times[0]):
+    if handle.demo and task.demo_times.size and actuate.duration < float(task.demo_times[-1] - task.demo_times[0]):
         actuate = _slowed(actuate, float(task.demo_times[-1] - task.demo_times[0]) / actuate.duration, rc.dt)
     q_path = configs["path"]
     retreat = point_to_point(q_path[-1], configs["retreat"], v, a, rc)
-    if final_state is not None:
+    if handle.final_state is not None:
         # The released part rests on the open fingers until they have slid out from under it.
         retreat = _slowed(retreat, 1.0 / config.falling_retreat_scale, rc.dt)
-    end_state = target_state if final_state is None else final_state
+    end_state = target_state if handle.final_state is None else handle.final_state
     close_hold, close_cmd = _gripper_move(q_path[0], opening, holding, config)
     released = release_command(robot, holding, config.grasp)
     open_hold, open_cmd = _gripper_move(q_path[-1], holding, released, config, config.release_hold_time)
@@ -464,12 +403,24 @@ def plan_interaction(
         ("retreat", retreat, constant(retreat, released), constant(retreat, end_state)),
     ]
     t, q, qd, gripper, part_state, raw_segments = _concatenate(pieces, rc.dt)
-    segments = _merge_segments(raw_segments, t)
-    lap("retime")
-    placement = solution["placement"]
+    return t, q, qd, gripper, part_state, _merge_segments(raw_segments, t)
 
-    T_start = path[0]
-    provenance = {
+
+def _provenance(
+    robot: RobotDescription,
+    scene_xml: str | Path,
+    task: ArticulationTask,
+    target: str | float,
+    handle: _HandlePath,
+    solution: dict,
+    timings: dict[str, float],
+    cpu_started: float,
+) -> dict:
+    """What a plan records of how it was made: inputs and their hashes, the caps on its target, the grasp,
+    the base stops, IK residuals, timings and the settings."""
+    grasp, configs, tracked, placement = solution["grasp"], solution["configs"], solution["tracked"], solution["placement"]
+    capped = handle.capped
+    return {
         "planner": PLANNER_VERSION,
         "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
         "robot_file": str(robot.yaml_path),
@@ -482,12 +433,12 @@ def plan_interaction(
         "task_files": {str(p): sha256_file(p) for p in task.source_files if Path(p).is_file()},
         "target": str(target),
         "target_blocked_at": None if capped is None else {"state": capped[0], "by": capped[1]},
-        "target_capped_by_reach": reach_capped,
+        "target_capped_by_reach": handle.reach_capped,
         "grasp": {
-            "depth_m": depth,
-            "flip": bool(flip),
+            "depth_m": grasp.depth,
+            "flip": bool(solution["flip"]),
             "tilt_rad": grasp.tilt,
-            "opening": opening,
+            "opening": grasp.opening,
             "approach_vias": len(configs["approach"]) - 3,
             "handle_axis_world": None if task.handle_axis_world is None else np.round(task.handle_axis_world, 6).tolist(),
             "approach_world": np.round(task.approach_world, 6).tolist(),
@@ -499,15 +450,73 @@ def plan_interaction(
         "timings_s": timings,
         "plan_time_s": round(sum(timings.values()), 4),
         "plan_cpu_time_s": round(time.process_time() - cpu_started, 4),
-        "config": asdict(config),
+        "config": asdict(handle.config),
     }
+
+
+def plan_interaction(
+    robot: RobotDescription,
+    scene_xml: str | Path,
+    task: ArticulationTask,
+    target: str | float = "open",
+    start: float | None = None,
+    config: PlanConfig = PlanConfig(),
+    model: mujoco.MjModel | None = None,
+) -> Plan:
+    """Plan a mobile manipulator opening (or closing) one articulated part of a scene.
+
+    The steps: the handle path (target resolved, capped at the scene and the arm's reach), the search over
+    base stops and grasp tilts (base placement, whole-body IK), timing, provenance.
+
+    Args:
+        robot: the robot.
+        scene_xml: MJCF scene the task is expressed in (its world frame is the task's).
+        task: the part and its joint, grasp and range (see ``task_sources``).
+        target: 'open', 'close', 'demo' or a joint state (rad or m).
+        start: the part's state when the robot arrives; default ``task.state_current``.
+        config: settings.
+        model: ``build_mujoco_model(robot, scene_xml)`` if already built.
+
+    Returns:
+        The timed plan, starting with the base at its first stop and the arm at home, gripper open.
+
+    Raises:
+        PlanningError: naming the step that failed (base placement, IK at a path state, timing).
+    """
+    clock = time.perf_counter()
+    cpu_started = time.process_time()
+    timings: dict[str, float] = {}
+
+    def lap(name: str) -> None:
+        nonlocal clock
+        now = time.perf_counter()
+        timings[name] = round(now - clock, 4)
+        clock = now
+
+    model = build_mujoco_model(robot, scene_xml) if model is None else model
+    lap("model")
+    joint = part_joint(model, task.part)
+    geometry = measure_robot(robot)
+    refusal = reach_refusal(robot, geometry, task)
+    if refusal is not None:
+        raise PlanningError(f"part '{task.part}': {refusal}")
+    if geometry.lift_range is not None:  # a torso or mast starts at the handle's height; the IK moves it on
+        robot = lifted(robot, geometry, handle_height(task), config.ik.limit_margin)
+        geometry = measure_robot(robot)
+    handle = _handle_path(robot, model, joint, task, geometry, target, start, config)
+    lap("path")
+    solution = _search(robot, model, joint, task, geometry, handle, cpu_started)
+    lap("placement_ik")
+    t, q, qd, gripper, part_state, segments = _timed(robot, model, task, handle, solution)
+    lap("retime")
+    path, grasp, placement = solution["path"], solution["grasp"], solution["placement"]
     return Plan(
         robot_name=robot.name,
         joint_names=robot.joint_names,
         gripper_joints=robot.gripper.joints,
         gripper_open=robot.gripper.open,
         gripper_closed=robot.gripper.closed,
-        grasp_command=holding,
+        grasp_command=grasp.holding,
         t=t,
         q=q,
         qd=qd,
@@ -519,13 +528,13 @@ def plan_interaction(
         axis_world=task.axis_world,
         pivot_world=task.pivot_world,
         state_range=task.state_range,
-        start_state=start_state,
-        target_state=end_state,
-        T_world_grasp_start=T_start,
-        p_world_grasp_target=path[-1, :3, 3] + depth * path[-1, :3, 2],
+        start_state=handle.start_state,
+        target_state=handle.target_state if handle.final_state is None else handle.final_state,
+        T_world_grasp_start=path[0],
+        p_world_grasp_target=path[-1, :3, 3] + grasp.depth * path[-1, :3, 2],
         grasp_free_axis=grasp_free_axis(task),
         base_poses=placement.poses,
-        provenance=provenance,
+        provenance=_provenance(robot, scene_xml, task, target, handle, solution, timings, cpu_started),
         release_from_grip=task.handle_width is None,
     )
 

@@ -35,15 +35,16 @@ from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+import mujoco
 import numpy as np
 
 from funrec.typed import FloatArray
 from funrec_robot.errors import RobotDescriptionError, UnknownNameError, format_names
-from funrec_robot.model_facts import AXIS_TOLERANCE, ModelFacts, check_base_axes, read_model_facts
+from funrec_robot.model_facts import AXIS_TOLERANCE, ModelFacts, check_base_axes, object_names, read_model_facts
 from funrec_robot.robot_yaml import BASE_MOTIONS, RobotFile, read_robot_yaml
 
 BaseType = Literal["fixed", "holonomic", "x+y", "x", "y", "yaw", "x+yaw", "y+yaw"]
@@ -73,6 +74,24 @@ class GripperDescription:
     """Command for open fingers: the actuator's control, or the finger joint position (m or rad)."""
     closed: float
     """Command for closed fingers, same unit."""
+    extra_actuators: tuple[str, ...] = ()
+    """Further actuators given the same command (a model with one actuator per finger)."""
+    open_width: float | None = None
+    """Gap between the jaws at the open command, m; None: twice the open-to-closed span (fingers on slides
+    whose command is each finger's travel, m). A hinged jaw (Spot's) gives its gap here."""
+
+    force: float | None = None
+    """Effort limit of the finger joints from the robot file (``limits.effort``), N or N m: it also caps the
+    model's gripper actuators in simulation (a model's unlimited jaw servo would squeeze a handle with
+    hundreds of newtons). None: the model's own limits."""
+
+    def command(self, half_width: float) -> float:
+        """The command that leaves ``half_width`` between the grasp centre and each jaw (linear between closed
+        and open; not clipped)."""
+        span = self.open - self.closed
+        if self.open_width is None:
+            return self.closed + half_width * float(np.sign(span))
+        return self.closed + half_width * span / (self.open_width / 2.0)
 
 
 @dataclass(frozen=True)
@@ -127,6 +146,17 @@ class RobotDescription:
     """Joint damping that replaces the model's in simulation, N s/m or N m s/rad."""
     gravity_compensation: bool
     """Whether the simulated controllers cancel gravity (through the actuators, within effort limits)."""
+    planar_base: bool = False
+    """The model's free joint on the root body was replaced by the planar base joints (``model_facts.robot_spec``)."""
+    drive: str = "holonomic"
+    """'holonomic' or 'differential': a differential base moves only along its heading (x) and turns on the
+    spot; the planner keeps it still at its stop while the arm works (see ``plan``)."""
+    base_height: float = 0.0
+    """Height of the root body above the base frame (the floor), m."""
+    ee_body: str | None = None
+    """Body the end-effector site was added to, if the model has no site for it."""
+    masses: dict[str, float] = field(default_factory=dict)
+    """Body -> mass replacing the model file's (inertia scaled alike) in every model built for the robot, kg."""
     q_postures: tuple[FloatArray, ...] = ()
     """(nq,) other home configurations the planner tries, in order, when the arm in ``q_home`` cannot hold the
     gripper at the handle within its effort limits (a 7-DoF arm reaches a grasp in many ways; with a heavy
@@ -293,7 +323,11 @@ def _gripper(facts: ModelFacts) -> GripperDescription:
             raise RobotDescriptionError(
                 file.path, f"gripper.{key}: {value:g} outside the command range {command_ranges}"
             )
-    return GripperDescription(file.gripper_joints, file.gripper_actuator, file.gripper_open, file.gripper_closed)
+    for k, name in enumerate(file.gripper_extra_actuators):
+        facts.actuator_ctrlrange(f"gripper.actuator[{k + 1}]", name)
+    forces = [file.effort_limits[n] for n in file.gripper_joints if n in file.effort_limits]
+    return GripperDescription(file.gripper_joints, file.gripper_actuator, file.gripper_open, file.gripper_closed,
+                              file.gripper_extra_actuators, file.gripper_open_width, min(forces) if forces else None)
 
 
 def _servos(facts: ModelFacts) -> dict[str, ServoGains]:
@@ -358,6 +392,10 @@ def load_robot(path: str | Path) -> RobotDescription:
     if file.ee_site not in facts.sites:
         raise UnknownNameError(file.path, "ee.site", "site", file.ee_site, facts.sites)
     _check_urdf(file, planning)
+    bodies = object_names(facts.model, mujoco.mjtObj.mjOBJ_BODY, range(1, facts.model.nbody))
+    for name in file.masses:
+        if name not in bodies:
+            raise UnknownNameError(file.path, "simulation.masses", "body", name, bodies)
     return RobotDescription(
         name=file.name,
         yaml_path=file.path.resolve(),
@@ -374,6 +412,11 @@ def load_robot(path: str | Path) -> RobotDescription:
         servos=servos,
         damping=dict(file.damping),
         gravity_compensation=file.gravity_compensation,
+        planar_base=file.planar_base,
+        drive=file.drive,
+        base_height=file.base_height,
+        ee_body=file.ee_body,
+        masses=dict(file.masses),
         **limits,
     )
 

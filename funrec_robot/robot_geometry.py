@@ -16,6 +16,9 @@ from funrec_robot.robot import RobotDescription
 from funrec_robot.scene import box_corners, geom_boxes, subtree_bodies
 from funrec_robot.sim_model import build_mujoco_model, reset_to_home, robot_indices
 
+FIXED_JAW_REACH_M = 0.02
+"""A geom of the hand (not of a finger) reaching this close to the fingertips along the approach is a fixed
+jaw, m (palms and wrist housings end well short of the fingertips)."""
 FOOTPRINT_CELL_M = 0.3
 """Largest side of the cells whose circumscribed circles cover a footprint rectangle, m."""
 
@@ -54,6 +57,11 @@ class RobotGeometry:
     """(M, 3) corners of the finger geoms' boxes in the grasp frame with the gripper open, m."""
     palm_corners: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
     """(P, 3) corners of the boxes of the hand's other geoms (palm, gripper body) in the grasp frame, m."""
+    lift_range: tuple[float, float] | None = None
+    """When the first arm joint is a vertical slide (a torso, a lift, a mast): how far the shoulder can move
+    down and up from its home height, (<= 0, >= 0) m; None otherwise."""
+    lift_sign: float = 1.0
+    """+1 when the lift joint's position raises the shoulder, -1 when it lowers it."""
 
 
 def _circles(corners: FloatArray, z_low: float, z_high: float) -> tuple[Circle, ...]:
@@ -74,8 +82,21 @@ def _corners(model: mujoco.MjModel, data: mujoco.MjData, geoms: np.ndarray) -> F
     return box_corners(*geom_boxes(model, data, geoms)).reshape(-1, 3)
 
 
+_MEASURED: dict[tuple, RobotGeometry] = {}
+"""Geometry already measured, by robot file, its modification time, home pose and hand (compiling a robot with
+meshes takes most of a second)."""
+
+
 def measure_robot(robot: RobotDescription) -> RobotGeometry:
     """Measure a robot on its own MuJoCo model at home, base joints at zero, finger joints at the open command."""
+    key = (str(robot.yaml_path), robot.yaml_path.stat().st_mtime_ns if robot.yaml_path.is_file() else 0, robot.q_home.tobytes(),
+           robot.T_ee_grasp.tobytes(), robot.gripper, robot.base_height)
+    if key not in _MEASURED:
+        _MEASURED[key] = _measure(robot)
+    return _MEASURED[key]
+
+
+def _measure(robot: RobotDescription) -> RobotGeometry:
     model = build_mujoco_model(robot)
     data = mujoco.MjData(model)
     reset_to_home(robot, model, data)
@@ -102,11 +123,24 @@ def measure_robot(robot: RobotDescription) -> RobotGeometry:
     finger_geoms = all_geoms[np.isin(model.geom_bodyid[all_geoms], finger_bodies)]
     hand_bodies = subtree_bodies(model, int(model.site_bodyid[indices.grasp_site]))
     palm_geoms = np.setdiff1d(all_geoms[np.isin(model.geom_bodyid[all_geoms], hand_bodies)], finger_geoms)
+    # A one-jaw gripper's fixed jaw belongs to the hand's body but reaches as far as the moving jaw: it is a
+    # finger (the handle sits against it), not palm.
+    tip = float(((_corners(model, data, finger_geoms) - p_grasp) @ R_world_grasp)[:, 2].max())
+    far = np.array([((_corners(model, data, [g]) - p_grasp) @ R_world_grasp)[:, 2].max() for g in palm_geoms])
+    jaws = palm_geoms[far >= tip - FIXED_JAW_REACH_M] if len(palm_geoms) else palm_geoms
+    finger_geoms, palm_geoms = np.union1d(finger_geoms, jaws), np.setdiff1d(palm_geoms, jaws)
 
     body_corners = _corners(model, data, body_geoms)
     arm_corners = _corners(model, data, arm_geoms)
     finger_grasp = (_corners(model, data, finger_geoms) - p_grasp) @ R_world_grasp
     finger_z = finger_grasp[:, 2]
+    lift_range, lift_sign = None, 1.0
+    first = arm[0]
+    if model.jnt_type[first] == mujoco.mjtJoint.mjJNT_SLIDE and abs(float(data.xaxis[first][2])) > 1.0 - 1e-6:
+        lift_sign = float(np.sign(data.xaxis[first][2]))
+        k = len(robot.base_joints)
+        moves = sorted(lift_sign * (float(limit[k]) - float(robot.q_home[k])) for limit in (robot.q_min, robot.q_max))
+        lift_range = (moves[0], moves[1])
     return RobotGeometry(
         p_base_shoulder=shoulder.copy(),
         wrist_to_grasp=float(np.linalg.norm(p_grasp - wrist)),
@@ -117,6 +151,8 @@ def measure_robot(robot: RobotDescription) -> RobotGeometry:
         finger_depth_range=(float(finger_z.min()), float(finger_z.max())),
         finger_corners=finger_grasp,
         palm_corners=(_corners(model, data, palm_geoms) - p_grasp) @ R_world_grasp if len(palm_geoms) else np.zeros((0, 3)),
+        lift_range=lift_range,
+        lift_sign=lift_sign,
     )
 
 

@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import importlib.util
 import math
-from dataclasses import dataclass
+import os
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +22,23 @@ PACKAGE_SCHEME = "package://"
 
 BASE_MOTIONS = ("x", "y", "yaw")
 """Motions a mobile base can have, in the order their joints must appear in the model."""
+
+MODELS_SCHEME = "models://"
+"""Prefix of a model path inside the robot models folder: ``models://<path>``, relative to the folder named by
+the environment variable ``FUNREC_ROBOT_MODELS`` (``funrec-robot --models DIR`` sets it)."""
+
+MODELS_ENV = "FUNREC_ROBOT_MODELS"
+"""Environment variable naming the robot models folder."""
+
+PLANAR_JOINTS = {"x": "base_x", "y": "base_y", "yaw": "base_yaw"}
+"""Joints funrec_robot adds to the root body in place of its free joint for ``base: {planar: true}``."""
+
+DRIVES = ("holonomic", "differential")
+"""How a base moves: 'holonomic' (any planar motion), 'differential' (wheels: only along its heading, and
+turning on the spot)."""
+
+EE_SITE_SUFFIX = "_funrec_ee"
+"""Name suffix of the end-effector site funrec_robot adds to ``ee.body`` (models without sites)."""
 
 
 @dataclass(frozen=True)
@@ -88,6 +106,21 @@ class RobotFile:
     postures: tuple[dict[str, float], ...] = ()
     """Other home postures (planning joint -> position, the rest as in ``home``), tried in order when the arm
     in the first cannot hold the gripper within its effort limits."""
+    planar_base: bool = False
+    """The root body's free joint is replaced by ``PLANAR_JOINTS`` (a kinematic planar base: legged bodies,
+    wheeled bases whose wheels the model simulates with contacts)."""
+    drive: str = "holonomic"
+    """One of ``DRIVES``."""
+    base_height: float = 0.0
+    """Height of the root body's frame above the floor with a planar base, m (a legged body standing)."""
+    ee_body: str | None = None
+    """Body the end-effector site ``ee_site`` is added to (at its origin), for models without a site."""
+    gripper_extra_actuators: tuple[str, ...] = ()
+    """Further actuators that get the same command as ``gripper_actuator`` (one per finger)."""
+    gripper_open_width: float | None = None
+    """Gap between the jaws at the open command, m (None: twice the command span, for finger slides)."""
+    masses: dict[str, float] = field(default_factory=dict)
+    """Body -> mass replacing the model's, kg (its inertia scaled alike), for a model file whose masses are wrong."""
 
 
 class _Reader:
@@ -146,6 +179,14 @@ class _Reader:
 
     def path_of(self, value: Any, key: str) -> Path:
         text = self.text(value, key)
+        if text.startswith(MODELS_SCHEME):
+            folder = os.environ.get(MODELS_ENV)
+            if not folder:
+                raise self.fail(key, f"'{text}': set {MODELS_ENV} (or pass --models DIR) to the robot models folder")
+            path = Path(folder) / text[len(MODELS_SCHEME) :]
+            if not path.is_file():
+                raise self.fail(key, f"'{text}': no such file {path} ({MODELS_ENV}={folder})")
+            return path.resolve()
         if text.startswith(PACKAGE_SCHEME):
             package, _, inner = text[len(PACKAGE_SCHEME) :].partition("/")
             spec = importlib.util.find_spec(package) if package.isidentifier() else None
@@ -190,17 +231,32 @@ def read_robot_yaml(path: str | Path) -> RobotFile:
     missing = [key for key in _REQUIRED if key not in top]
     if missing:
         raise r.fail("(top level)", f"missing key {format_names(missing)}")
-    base = r.mapping(top.get("base"), "base", BASE_MOTIONS)
-    gripper = r.mapping(top["gripper"], "gripper", ("joints", "actuator", "open", "closed"))
+    base = r.mapping(top.get("base"), "base", (*BASE_MOTIONS, "planar", "drive", "height"))
+    planar = base.get("planar", False)
+    if not isinstance(planar, bool):
+        raise r.fail("base.planar", f"expected true or false, got {planar!r}")
+    drive = base.get("drive", "holonomic")
+    if drive not in DRIVES:
+        raise r.fail("base.drive", f"expected one of {format_names(DRIVES)}, got {drive!r}")
+    motions = {m: r.text(base[m], f"base.{m}") for m in BASE_MOTIONS if m in base}
+    if planar and motions:
+        raise r.fail("base", f"planar: true adds the base joints {format_names(PLANAR_JOINTS.values())}; do not name x, y or yaw as well")
+    if planar:
+        motions = dict(PLANAR_JOINTS)
+    gripper = r.mapping(top["gripper"], "gripper", ("joints", "actuator", "open", "closed", "open_width"))
     for key in ("joints", "open", "closed"):
         if key not in gripper:
             raise r.fail("gripper", f"missing key '{key}'")
-    ee = r.mapping(top["ee"], "ee", ("site", "approach_axis", "closing_axis", "offset"))
-    if "site" not in ee:
-        raise r.fail("ee", "missing key 'site'")
+    ee = r.mapping(top["ee"], "ee", ("site", "body", "approach_axis", "closing_axis", "offset"))
+    if ("site" in ee) == ("body" in ee):
+        raise r.fail("ee", "expected exactly one of 'site' (a site of the model) or 'body' (a site is added at its origin)")
+    ee_body = r.text(ee["body"], "ee.body") if "body" in ee else None
+    actuators = gripper.get("actuator")
+    actuators = r.names(actuators, "gripper.actuator") if isinstance(actuators, list) else (
+        (r.text(actuators, "gripper.actuator"),) if actuators is not None else ())
     limits = r.mapping(top.get("limits"), "limits", ("position", "velocity", "acceleration", "effort"))
     position = r.mapping(limits.get("position"), "limits.position")
-    simulation = r.mapping(top.get("simulation"), "simulation", ("gravity_compensation", "damping", "servos"))
+    simulation = r.mapping(top.get("simulation"), "simulation", ("gravity_compensation", "damping", "servos", "masses"))
     gravity = simulation.get("gravity_compensation", False)
     if not isinstance(gravity, bool):
         raise r.fail("simulation.gravity_compensation", f"expected true or false, got {gravity!r}")
@@ -226,13 +282,13 @@ def read_robot_yaml(path: str | Path) -> RobotFile:
         model=r.path_of(top["model"], "model"),
         urdf=r.path_of(top["urdf"], "urdf") if "urdf" in top else None,
         root_body=r.text(top["root_body"], "root_body") if "root_body" in top else None,
-        base={motion: r.text(joint, f"base.{motion}") for motion, joint in base.items()},
+        base=motions,
         arm_joints=r.names(top["arm_joints"], "arm_joints"),
         gripper_joints=r.names(gripper["joints"], "gripper.joints"),
-        gripper_actuator=r.text(gripper["actuator"], "gripper.actuator") if "actuator" in gripper else None,
+        gripper_actuator=actuators[0] if actuators else None,
         gripper_open=r.number(gripper["open"], "gripper.open"),
         gripper_closed=r.number(gripper["closed"], "gripper.closed"),
-        ee_site=r.text(ee["site"], "ee.site"),
+        ee_site=r.text(ee["site"], "ee.site") if ee_body is None else ee_body + EE_SITE_SUFFIX,
         approach_axis=r.vector3(ee.get("approach_axis", [0, 0, 1]), "ee.approach_axis"),
         closing_axis=r.vector3(ee.get("closing_axis", [0, 1, 0]), "ee.closing_axis"),
         offset=r.vector3(ee.get("offset", [0, 0, 0]), "ee.offset"),
@@ -246,6 +302,13 @@ def read_robot_yaml(path: str | Path) -> RobotFile:
         damping=r.number_map(simulation.get("damping"), "simulation.damping", 0.0),
         servos=servos,
         postures=_postures(r, top.get("postures")),
+        planar_base=planar,
+        drive=drive,
+        base_height=r.number(base.get("height", 0.0), "base.height", 0.0),
+        ee_body=ee_body,
+        gripper_extra_actuators=actuators[1:],
+        masses=r.number_map(simulation.get("masses"), "simulation.masses", positive=True),
+        gripper_open_width=r.number(gripper["open_width"], "gripper.open_width", positive=True) if "open_width" in gripper else None,
     )
 
 
@@ -257,4 +320,7 @@ def _postures(r: _Reader, value: object) -> tuple[dict[str, float], ...]:
     return tuple(r.number_map(entry, f"postures[{k}]") for k, entry in enumerate(value))
 
 
-__all__ = ["BASE_MOTIONS", "PACKAGE_SCHEME", "RobotFile", "ServoEntry", "read_robot_yaml"]
+__all__ = [
+    "BASE_MOTIONS", "DRIVES", "EE_SITE_SUFFIX", "MODELS_ENV", "MODELS_SCHEME", "PACKAGE_SCHEME", "PLANAR_JOINTS", "RobotFile",
+    "ServoEntry", "read_robot_yaml",
+]

@@ -18,6 +18,7 @@ from scipy.spatial.transform import Rotation
 
 from funrec.typed import FloatArray, IntArray
 from funrec_robot.errors import RobotDescriptionError
+from funrec_robot.model_facts import robot_spec
 from funrec_robot.robot import RobotDescription
 
 ROBOT_PREFIX = "robot/"
@@ -75,7 +76,7 @@ def _T_to_pos_quat(T: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
 def _prepare_robot_spec(robot: RobotDescription) -> mujoco.MjSpec:
     """The robot's model file as a spec, with servos, damping, gravity compensation and grasp site added."""
     try:
-        spec = mujoco.MjSpec.from_file(str(robot.model_path))
+        spec = robot_spec(robot.model_path, robot.root_body, robot.planar_base, robot.ee_body, robot.ee_site)
     except ValueError as exc:
         raise RobotDescriptionError(robot.model_path, f"MuJoCo cannot load the model: {exc}") from exc
     for name, damping in robot.damping.items():
@@ -98,6 +99,17 @@ def _prepare_robot_spec(robot: RobotDescription) -> mujoco.MjSpec:
         if joint.actfrclimited != mujoco.mjtLimited.mjLIMITED_TRUE:
             joint.actfrcrange = [-gains.force, gains.force]
             joint.actfrclimited = mujoco.mjtLimited.mjLIMITED_TRUE
+    for name, mass in robot.masses.items():
+        body = spec.body(name)
+        body.inertia = np.asarray(body.inertia) * (mass / body.mass)
+        body.mass = mass
+    gripper = robot.gripper
+    if gripper.force is not None and gripper.actuator is not None:
+        for name in (gripper.actuator, *gripper.extra_actuators):
+            actuator = spec.actuator(name)
+            gear = abs(float(actuator.gear[0])) or 1.0
+            actuator.forcerange = [-gripper.force / gear, gripper.force / gear]
+            actuator.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
     root = spec.body(robot.root_body)
     if robot.gravity_compensation:
         for body in [root, *root.find_all(mujoco.mjtObj.mjOBJ_BODY)]:
@@ -109,7 +121,7 @@ def _prepare_robot_spec(robot: RobotDescription) -> mujoco.MjSpec:
                 joint.actgravcomp = True
     if robot.grasp_site != robot.ee_site:
         # The compiled model gives the site's pose in its body whatever orientation syntax the file used.
-        compiled = mujoco.MjModel.from_xml_path(str(robot.model_path))
+        compiled = robot_spec(robot.model_path, robot.root_body, robot.planar_base, robot.ee_body, robot.ee_site).compile()
         site = compiled.site(robot.ee_site)
         T_body_ee = np.eye(4)
         T_body_ee[:3, :3] = Rotation.from_quat(np.roll(site.quat, -1)).as_matrix()
@@ -157,8 +169,8 @@ def build_mujoco_spec(
     pos, quat_wxyz = _T_to_pos_quat(np.eye(4) if T_world_base is None else T_world_base)
     frame = world.worldbody.add_frame(pos=pos, quat=quat_wxyz)
     body = frame.attach_body(robot_spec.body(robot.root_body), ROBOT_PREFIX, "")
-    # The base frame is the root body's frame: drop the placement it had in its own model file.
-    body.pos = [0.0, 0.0, 0.0]
+    # The base frame is the root body's frame (lifted by base.height): drop the placement it had in its own model file.
+    body.pos = [0.0, 0.0, robot.base_height]
     body.quat = [1.0, 0.0, 0.0, 0.0]
     return world
 
@@ -207,7 +219,8 @@ def robot_indices(robot: RobotDescription, model: mujoco.MjModel) -> RobotIndice
     fingers = [_id(model, joint, name) for name in robot.gripper.joints]
     held = [_id(model, joint, name) for name in robot.held_joints]
     if robot.gripper.actuator is not None:
-        gripper_actuators = [_id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, robot.gripper.actuator)]
+        gripper_actuators = [_id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, name)
+                             for name in (robot.gripper.actuator, *robot.gripper.extra_actuators)]
     else:
         gripper_actuators = [_joint_actuator(model, j) for j in fingers]
     root = _id(model, mujoco.mjtObj.mjOBJ_BODY, robot.root_body)

@@ -71,6 +71,13 @@ def load_task(source: SceneSource, part: str | None = None, scene_model: mujoco.
     return task_from_twin(source.folder, part)
 
 
+def part_names(source: SceneSource) -> tuple[str, ...]:
+    """Names of the articulated parts of a located scene (its ground truth's or its twin's)."""
+    if source.kind == "gt":
+        return tuple(p.part.name for p in read_ground_truth(source.folder).parts)
+    return tuple(p.name for p in read_articulation(source.folder / "articulation.json").parts)
+
+
 def _pick_part(names: list[str], part: str | None, where: Path) -> int:
     if part is None:
         if len(names) != 1:
@@ -295,4 +302,4 @@ def task_from_twin(
     )
 
 
-__all__ = ["SceneSource", "load_task", "locate_scene", "task_from_ground_truth", "task_from_twin"]
+__all__ = ["SceneSource", "load_task", "locate_scene", "part_names", "task_from_ground_truth", "task_from_twin"]

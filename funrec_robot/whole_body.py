@@ -4,8 +4,6 @@ joint motion collides), the handle path (refined until the joint interpolation s
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import mujoco
 import numpy as np
 
@@ -14,14 +12,12 @@ from funrec.typed import FloatArray
 from funrec_robot.feasibility import GravityOverload, first_collision, gravity_overload
 from funrec_robot.grasp import FLIP, GraspCandidate, handle_frames, offset_along_approach, release_command
 from funrec_robot.ik import WholeBodyIK
+from funrec_robot.plan_config import PlanConfig
 from funrec_robot.retime import point_to_point
 from funrec_robot.robot import RobotDescription
 from funrec_robot.scene import floor_geoms, geoms_near, part_geoms
 from funrec_robot.task import ArticulationTask
 from funrec_robot.trajopt import BasePlacement
-
-if TYPE_CHECKING:
-    from funrec_robot.plan import PlanConfig
 
 
 def _base_q(robot: RobotDescription, pose: FloatArray) -> FloatArray:
@@ -72,7 +68,8 @@ def whole_body_configurations(
     contact = frames[0, :3, 3] + depth * frames[0, :3, 2]
     handle = geoms_near(model, data, part_geoms(model, joint), contact, config.grasp.handle_radius)
     base_points = np.column_stack([placement.poses[:, :2], np.full(len(placement.poses), 0.5)])
-    ik = WholeBodyIK(robot, model, joint, np.vstack([frames[:, :3, 3], base_points]), handle, config.ik)
+    ik = WholeBodyIK(robot, model, joint, np.vstack([frames[:, :3, 3], base_points]), handle, config.ik,
+                     freeze_base=robot.drive == "differential")
     posture = posture_along(robot, placement, len(states))
     q_start = posture[0].copy()
     opening, holding = grasp.opening, grasp.holding
@@ -131,7 +128,7 @@ def whole_body_configurations(
     steps = np.arange(1, int(np.ceil(config.retreat_distance / config.retreat_step)) + 1) * config.retreat_step
     for distance in np.minimum(steps, config.retreat_distance):
         T_retreat = offset_along_approach(path[-1], float(distance))
-        q_next, e_pos, e_rot = ik.solve(T_retreat, q_retreat, q_retreat, target_state, released)
+        q_next, e_pos, e_rot = ik.solve(T_retreat, q_retreat, q_retreat, target_state, released, rolling=True)
         if e_pos > config.track_position_tolerance or e_rot > config.track_orientation_tolerance:
             break
         q_retreat = q_next
@@ -188,7 +185,7 @@ def _refine_path(
                 off.append(k)
         if not off:
             break
-        new_q = {k: ik.solve(expected[k], middle_q[k], middle_q[k], float(middle_s[k]), fingers)[0] for k in off}
+        new_q = {k: ik.solve(expected[k], middle_q[k], middle_q[k], float(middle_s[k]), fingers, rolling=True)[0] for k in off}
         order = np.argsort(np.concatenate([np.arange(len(states)), np.array(off) + 0.5]), kind="stable")
         states = np.concatenate([states, middle_s[off]])[order]
         path = np.concatenate([path, expected[off]])[order]

@@ -1,0 +1,98 @@
+"""Robots FunREC did not write, described by their YAML files alone: Spot with arm and TIAGo from MuJoCo
+Menagerie (free-joint bases made planar, sites added, a one-jaw gripper, a torso lift), the quick reach
+refusal, and the rolling constraint of a differential base. The models live outside the repository
+(FUNREC_ROBOT_MODELS, default ../shared/robots next to the checkout); without them these tests skip."""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from funrec_robot.errors import RobotDescriptionError
+from funrec_robot.ik import HeadingConstraint
+from funrec_robot.reach import reach_band, reach_refusal
+from funrec_robot.robot import load_robot
+from funrec_robot.robot_geometry import measure_robot
+from funrec_robot.robot_yaml import MODELS_ENV, PLANAR_JOINTS
+from funrec_robot.task import ArticulationTask
+
+ROBOTS = Path(__file__).resolve().parents[1] / "robots"
+MODELS = Path(os.environ.get(MODELS_ENV, Path(__file__).resolve().parents[2] / "shared" / "robots"))
+
+pytestmark = pytest.mark.skipif(not (MODELS / "pal_tiago").is_dir(), reason=f"robot models not found in {MODELS}")
+
+
+@pytest.fixture(autouse=True)
+def models_folder(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv(MODELS_ENV, str(MODELS))
+
+
+@pytest.fixture(scope="module")
+def tiago():
+    os.environ.setdefault(MODELS_ENV, str(MODELS))
+    robot = load_robot(ROBOTS / "tiago.yaml")
+    return robot, measure_robot(robot)
+
+
+def test_tiago_is_a_differential_planar_base_with_a_torso_lift(tiago) -> None:
+    robot, geometry = tiago
+    assert robot.base_joints == tuple(PLANAR_JOINTS.values()) and robot.drive == "differential"
+    assert robot.arm_joints[0] == "torso_lift_joint" and robot.nq == 3 + 8
+    low, high = geometry.lift_range
+    assert low == pytest.approx(-0.15) and high == pytest.approx(0.20)  # torso 0-0.35 m, home 0.15 m
+    assert robot.gripper.extra_actuators == ("gripper_right_finger_position",)
+
+
+def test_spot_stands_on_a_planar_body_with_a_one_jaw_gripper() -> None:
+    robot = load_robot(ROBOTS / "spot_arm.yaml")
+    geometry = measure_robot(robot)
+    assert robot.base_type == "holonomic" and robot.base_height == pytest.approx(0.46)
+    assert "fl_kn" in robot.held_joints and robot.gripper.joints == ("arm_f1x",)
+    # the fixed jaw (part of the wrist body) is counted with the moving one: both sides of the grasp have jaws
+    assert geometry.finger_corners[:, 1].min() < 0.0 < geometry.finger_corners[:, 1].max()
+    assert geometry.p_base_shoulder[2] > 0.5  # the arm sits on the standing body
+    # a hinged jaw: the command for a gap is linear between closed (0) and open (-1 rad at 75 mm)
+    assert robot.gripper.command(0.0375) == pytest.approx(-1.0)
+
+
+def test_a_handle_out_of_reach_is_refused_at_once_in_one_sentence(tiago) -> None:
+    robot, geometry = tiago
+    band = reach_band(geometry)
+    task = ArticulationTask(part="part_3", joint_type="revolute", axis_world=[0, 0, 1], pivot_world=[0.0, 1.0, 0.0],
+                            state_range=(0.0, 1.5), state_current=0.0, p_world_contact=[0.4, 1.0, band.high + 0.1],
+                            approach_world=[0, 1, 0], handle_axis_world=[0, 0, 1])
+    started = time.process_time()
+    why = reach_refusal(robot, geometry, task)
+    assert time.process_time() - started < 1.0
+    assert why is not None and why.startswith(f"handle at {band.high + 0.1:.2f} m; tiago reaches ")
+    assert "torso_lift_joint at 0.00-0.35 m" in why and "\n" not in why
+    inside = ArticulationTask(**{**task.__dict__, "p_world_contact": np.array([0.4, 1.0, 1.0])})
+    assert reach_refusal(robot, geometry, inside) is None
+
+
+def test_the_rolling_constraint_allows_only_motion_along_the_heading() -> None:
+    class Configuration:
+        q = np.array([0.0, 0.0, 0.7])
+
+    constraint = HeadingConstraint(type("Model", (), {"nv": 3})(), 0, 1, 2)
+    J = constraint.compute_jacobian(Configuration())
+    heading = np.array([np.cos(0.7), np.sin(0.7), 0.0])
+    sideways = np.array([-np.sin(0.7), np.cos(0.7), 0.0])
+    turn = np.array([0.0, 0.0, 1.0])
+    assert J @ heading == pytest.approx([0.0]) and J @ turn == pytest.approx([0.0])
+    assert J @ sideways == pytest.approx([1.0])
+
+
+def test_models_scheme_needs_the_models_folder(tmp_path, monkeypatch) -> None:
+    monkeypatch.delenv(MODELS_ENV)
+    with pytest.raises(RobotDescriptionError, match=f"set {MODELS_ENV}"):
+        load_robot(ROBOTS / "tiago.yaml")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text((ROBOTS / "tiago.yaml").read_text().replace("  planar: true\n", "  planar: true\n  x: base_link_x\n"))
+    monkeypatch.setenv(MODELS_ENV, str(MODELS))
+    with pytest.raises(RobotDescriptionError, match="planar: true adds the base joints"):
+        load_robot(bad)
