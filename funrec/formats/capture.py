@@ -21,7 +21,7 @@ from PIL import Image, UnidentifiedImageError
 
 from funrec.errors import CaptureError
 from funrec.formats.camera_poses import read_camera_poses
-from funrec.formats.capture_usable import intrinsics_problem
+from funrec.formats.intrinsics_check import intrinsics_problem
 from funrec.geometry.camera import PinholeIntrinsics
 from funrec.typed import BoolArray, FloatArray, UInt8Array
 

@@ -4,22 +4,17 @@ could use, naming the file (and frame) and what is wrong."""
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from funrec.errors import CaptureError
-
-if TYPE_CHECKING:  # capture.py calls intrinsics_problem: no import at run time
-    from funrec.formats.capture import Capture, CaptureIntrinsics
+from funrec.formats.capture import Capture
+from funrec.formats.intrinsics_check import MAX_IMAGE_PIXELS, intrinsics_problem
 
 MIN_FRAMES = 3
 """Fewest frames a reconstruction can use (tracking and articulation need motion across several views)."""
-MAX_IMAGE_PIXELS = 50_000_000
-"""Largest image accepted, pixels (8K UHD is 33 MP); checked from headers before anything is decoded."""
 MIN_MEDIAN_DEPTH_M = 0.05
 """A capture whose median depth reading is nearer than this stores depth in another unit (e.g. metres as integers)."""
 MAX_MEDIAN_DEPTH_M = 50.0
@@ -28,34 +23,6 @@ MIN_VALID_DEPTH = 0.01
 """Fewest depth readings a frame must have, as a fraction of its pixels, for it to count."""
 BLACK_LEVEL = 8
 """A colour frame whose brightest pixel is at most this is black."""
-ASPECT_RANGE = (0.5, 2.0)
-"""Plausible fx / fy (square pixels: 1)."""
-FOV_RANGE_DEG = (10.0, 170.0)
-"""Plausible horizontal and vertical fields of view, degrees."""
-
-
-def intrinsics_problem(K: CaptureIntrinsics) -> str | None:
-    """Why intrinsics cannot describe the camera that took a capture, or None.
-
-    Refuses an image over ``MAX_IMAGE_PIXELS``, fx / fy outside ``ASPECT_RANGE``, a field of view outside
-    ``FOV_RANGE_DEG`` and a principal point more than a quarter of the image outside it.
-    """
-    if K.width * K.height > MAX_IMAGE_PIXELS:
-        return f"{K.width}x{K.height} is {K.width * K.height / 1e6:.0f} MP; at most {MAX_IMAGE_PIXELS / 1e6:.0f} MP are accepted"
-    aspect = K.fx / K.fy
-    if not ASPECT_RANGE[0] <= aspect <= ASPECT_RANGE[1]:
-        return (f"fx {K.fx:g} and fy {K.fy:g} differ by a factor {max(aspect, 1 / aspect):.1f}: depth cameras have (nearly) square "
-                f"pixels, expected {ASPECT_RANGE[0]} <= fx/fy <= {ASPECT_RANGE[1]}")
-    for name, size, focal in (("horizontal", K.width, K.fx), ("vertical", K.height, K.fy)):
-        fov = math.degrees(2.0 * math.atan(size / (2.0 * focal)))
-        if not FOV_RANGE_DEG[0] <= fov <= FOV_RANGE_DEG[1]:
-            return f"{name} field of view {fov:.1f} deg (size {size} px, focal {focal:g} px) is outside {FOV_RANGE_DEG} deg"
-    for name, centre, size in (("cx", K.cx, K.width), ("cy", K.cy, K.height)):
-        if not -0.25 * size <= centre <= 1.25 * size:
-            return f"principal point {name} {centre:g} is far outside the {size}-pixel image"
-    return None
-
-
 def check_capture_usable(capture: Capture, progress: Callable[[int, int], None] | None = None) -> None:
     """Decode every frame (and mask) and refuse a capture no reconstruction can use.
 
@@ -103,4 +70,4 @@ def _refuse_frames(paths: tuple[Path, ...], frames: list[int], n: int, what: str
         raise CaptureError(paths[frames[0]], f"{what}; so are {len(frames)} of {n} frames", frames[0])
 
 
-__all__ = ["MAX_IMAGE_PIXELS", "MIN_FRAMES", "check_capture_usable", "intrinsics_problem"]
+__all__ = ["MIN_FRAMES", "check_capture_usable"]
