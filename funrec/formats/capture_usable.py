@@ -11,7 +11,6 @@ import numpy as np
 
 from funrec.errors import CaptureError
 from funrec.formats.capture import Capture
-from funrec.formats.intrinsics_check import MAX_IMAGE_PIXELS, intrinsics_problem
 
 MIN_FRAMES = 3
 """Fewest frames a reconstruction can use (tracking and articulation need motion across several views)."""
