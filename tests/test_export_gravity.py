@@ -25,11 +25,11 @@ TILT_DEG = 5.35
 
 
 def _tilted_export(twin_dir: Path, config: ExportConfig) -> ExportConfig:
-    """The cabinet upright (z up), then tilted by TILT_DEG about a horizontal diagonal, so the door
+    """The cabinet upright (z up), then tilted by TILT_DEG about x (across the front), so the door
     axis is TILT_DEG off vertical and the drawer axis off horizontal."""
     write_cabinet_twin(twin_dir)
     T_tilt = np.eye(4)
-    T_tilt[:3, :3] = Rotation.from_rotvec(np.radians(TILT_DEG) * np.array([1.0, 1.0, 0.0]) / np.sqrt(2.0)).as_matrix()
+    T_tilt[:3, :3] = Rotation.from_rotvec(np.radians(TILT_DEG) * np.array([1.0, 0.0, 0.0])).as_matrix()
     return dataclasses.replace(config, T_export_world=T_tilt @ np.linalg.inv(T_WORLD_CABINET))
 
 
@@ -81,3 +81,27 @@ def test_friction_covers_the_gravity_load(tilted_twin: Path) -> None:
     drawer_link, drawer = exports.model.parts[1], exports.model.joints[1]
     expected = drawer_link.mass.mass_kg * 9.81 * abs(drawer.T_parent_joint[2, 2])
     assert gravity_load(drawer_link, drawer, np.array([0.0, 0.0, -9.81])) == pytest.approx(expected)
+
+
+def test_axis_snapping_levels_the_tilted_axes(tmp_path: Path) -> None:
+    twin_dir = tmp_path / "twin"
+    config = _tilted_export(twin_dir, dataclasses.replace(FAST_EXPORT, formats=(), snap_axis_deg=6.0))
+    door, drawer = export_simulation(twin_dir, config).model.joints
+    np.testing.assert_allclose(abs(door.T_parent_joint[2, 2]), 1.0, atol=1e-12)  # hinge along gravity
+    np.testing.assert_allclose(drawer.T_parent_joint[2, 2], 0.0, atol=1e-12)  # runner level
+    # Nothing left for friction to hold: the least friction remains.
+    assert (door.friction, drawer.friction) == (FAST_EXPORT.revolute_friction_nm, FAST_EXPORT.prismatic_friction_n)
+    # Beyond the tolerance nothing is snapped.
+    door, drawer = export_simulation(twin_dir, dataclasses.replace(config, snap_axis_deg=5.0)).model.joints
+    assert abs(door.T_parent_joint[2, 2]) < 1.0 - 1e-6 and abs(drawer.T_parent_joint[2, 2]) > 1e-6
+
+
+def test_snap_axis() -> None:
+    from funrec.export.axis_snap import snap_axis
+
+    tilted = np.array([np.sin(np.radians(3.0)), 0.0, -np.cos(np.radians(3.0))])
+    np.testing.assert_allclose(snap_axis(tilted, 4.0)[0], [0.0, 0.0, -1.0])
+    assert snap_axis(tilted, 2.0)[1] == "none" and snap_axis(tilted, 0.0)[1] == "none"
+    level, kind = snap_axis(np.array([0.0, 2.0, 0.1]), 4.0)
+    assert kind == "horizontal"
+    np.testing.assert_allclose(level, [0.0, 1.0, 0.0])
