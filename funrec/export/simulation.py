@@ -44,7 +44,7 @@ URDF_NAME, MJCF_NAME, USD_NAME = "twin.urdf", "twin.xml", "twin.usda"
 USD_BINARY_NAME = "twin.usdc"
 """The USD export's name when ExportConfig.usd_binary asks for binary USD (crate)."""
 GRAVITY_EXPORT_M_S2 = (0.0, 0.0, -9.81)
-"""Gravity in the export frame: the twin's world frame is gravity-aligned with z up (funrec.gravity),
+"""Gravity in the export frame: the twin's world frame is gravity-aligned with z up (funrec.surfaces.gravity),
 as are the frames the simulators put the files in."""
 
 
