@@ -17,14 +17,37 @@ from typing import Any
 
 from funrec.cli_runner import progress_bar, run_command, stage_bars
 
+_ARGV: list[str] = []
+"""The arguments being parsed (set by build_parser)."""
+RECONSTRUCT_COMMON = (
+    "align_gravity",
+    "use_hand_masks",
+    "use_object_masks",
+    "parts_per_fragment",
+    "fusion.static_voxel_m",
+    "fusion.part_voxel_m",
+    "export.density_kg_m3",
+    "export.snap_axis_deg",
+    "export.usd_binary",
+)
+"""The reconstruct options ``--help`` lists: what a user changes about the result (frames, masks
+used, resolution, physics). The other ~260 are the stages' tuning knobs; they are accepted always
+and listed by ``--help-all`` or, as a config file, by ``--print-config``."""
 
-def _add_config_options(parser: argparse.ArgumentParser, selected: bool, module: str, config: str) -> None:
+
+def _add_config_options(
+    parser: argparse.ArgumentParser, selected: bool, module: str, config: str, common: tuple[str, ...] = ()
+) -> None:
     """Add a flag per field of the frozen config class ``module.config`` (help from its attribute
-    docstrings), importing the module only for the command being run: stage modules are slow to import."""
+    docstrings), importing the module only for the command being run: stage modules are slow to import.
+    With ``common``, ``--help`` lists only those flags and ``--help-all`` every one."""
+    if common:
+        parser.add_argument("--help-all", action="help", help="show the help of every stage option and exit")
     if selected:
         from funrec.config import add_config_arguments
 
-        add_config_arguments(parser, getattr(importlib.import_module(module), config))
+        show_all = not common or "--help-all" in _ARGV
+        add_config_arguments(parser, getattr(importlib.import_module(module), config), common=common, show_all=show_all)
 
 
 def _print_summary(summary: Any) -> None:
@@ -50,6 +73,15 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
 
     base = load_config_file(ReconstructConfig, args.config) if args.config else None
     config = config_from_args(ReconstructConfig, args, base)
+    if args.print_config:
+        import json
+
+        from funrec.config import config_to_dict
+
+        print(json.dumps(config_to_dict(config), indent=2))
+        return 0
+    if args.capture is None or args.output is None:
+        args.parser.error("the following arguments are required: CAPTURE, -o/--output")
     with stage_bars() as progress:
         summary = reconstruct(args.capture, args.output, config, progress=progress, overwrite=args.overwrite)
     _print_summary(summary)
@@ -352,17 +384,23 @@ def _add_bench(sub: Any, selected: bool) -> None:
 def _add_reconstruct(sub: Any, selected: bool) -> None:
     p = sub.add_parser(
         "reconstruct",
-        usage="funrec reconstruct CAPTURE -o TWIN [--overwrite] [--config FILE] [stage options]",
+        usage="funrec reconstruct CAPTURE -o TWIN [--overwrite] [--config FILE] [options]",
         help="reconstruct a functional twin from a capture folder",
         description="Track the camera, track points, find the part the person moved and its joint, segment "
-        "it in every frame, fuse meshes, and write a twin folder (FORMATS.md section 2). The twin is written "
-        "to a temporary folder and moved into place only when complete.",
+        "it in every frame, fuse meshes, and write a twin folder (FORMATS.md section 2) with the config it was "
+        "made with in config.json. The twin is written to a temporary folder and moved into place only when "
+        "complete.",
+        epilog="Every stage setting has a flag too (about 260): --help-all lists them, --print-config prints "
+        "them all as a config file to edit and pass back with --config.",
     )
-    p.add_argument("capture", type=Path, help="capture folder (FORMATS.md section 1)")
-    p.add_argument("-o", "--output", type=Path, required=True, help="twin folder to write")
+    p.add_argument("capture", type=Path, nargs="?", metavar="CAPTURE", help="capture folder (FORMATS.md section 1)")
+    p.add_argument("-o", "--output", type=Path, help="twin folder to write (required)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing twin folder")
     p.add_argument("--config", type=Path, help="JSON or YAML file of ReconstructConfig fields (unknown keys are errors)")
-    _add_config_options(p, selected, "funrec.pipeline", "ReconstructConfig")
+    p.add_argument("--print-config", action="store_true",
+                   help="print the full config (defaults, --config file and flags applied) as JSON and exit")
+    _add_config_options(p, selected, "funrec.pipeline", "ReconstructConfig", RECONSTRUCT_COMMON)
+    p.set_defaults(parser=p)
     p.set_defaults(handler=_cmd_reconstruct)
 
 
@@ -401,9 +439,9 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
         prog="funrec",
         description="FunREC: functional digital twins from egocentric RGB-D interaction videos.",
     )
-    parser.add_argument("-v", "--verbose", action="store_true", help="log detail and show tracebacks of errors")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    words = [a for a in (sys.argv[1:] if argv is None else argv) if not a.startswith("-")]
+    _ARGV[:] = sys.argv[1:] if argv is None else argv
+    words = [a for a in _ARGV if not a.startswith("-")]
     for name, add in _COMMANDS.items():
         add(sub, bool(words) and words[0] == name)
     return parser

@@ -25,6 +25,7 @@ from funrec.export.simulation import ExportConfig, export_simulation
 from funrec.export.twin import TwinWriter
 from funrec.formats.capture import Capture, load_capture
 from funrec.formats.twin import ArticulatedPart, TwinArticulation, make_part
+from funrec.formats.twin_config import TWIN_CONFIG_FILE, write_twin_config
 from funrec.geometry.transforms import transform_points
 from funrec.parts.articulation import ArticulationConfig, InteractionEvidence, PartEstimate, estimate_articulation
 from funrec.parts.camera_lock import CameraLockConfig, unlock_camera
@@ -314,7 +315,14 @@ def _reconstruct(capture_dir: str | Path, out_dir: str | Path, config: Reconstru
 
     def timed(name: str, fn, *args, **kwargs):  # noqa: ANN001, ANN202 (thin timing wrapper)
         start, start_cpu = time.perf_counter(), time.process_time()
+        # A stage without progress of its own is still named while it runs (export takes a third
+        # of a run; its time was shown under the stage before it).
+        silent = progress is not None and "progress" not in kwargs
+        if silent:
+            progress(name, 0, 1)
         result = fn(*args, **kwargs)
+        if silent:
+            progress(name, 1, 1)
         seconds[name] = seconds.get(name, 0.0) + time.perf_counter() - start
         cpu_seconds[name] = cpu_seconds.get(name, 0.0) + time.process_time() - start_cpu
         log.info("%s: %.1f s (CPU %.1f s)", name, seconds[name], cpu_seconds[name])
@@ -405,6 +413,7 @@ def _reconstruct(capture_dir: str | Path, out_dir: str | Path, config: Reconstru
         write_fragments(writer.path("fragments.json"), fragments)
         writer.write_camera_poses(trajectory_twin.T_world_camera)
         writer.write_articulation(TwinArticulation(frame_count=len(capture), parts=tuple(parts)))
+        write_twin_config(writer.path(TWIN_CONFIG_FILE), config)
         timed("export", export_simulation, writer.root, config.export)
     summaries = tuple(
         PartSummary(p.name, p.joint_type, p.state_range, (int(p.frames[0]), int(p.frames[-1]))) for p in parts

@@ -328,7 +328,6 @@ def build_parser() -> argparse.ArgumentParser:
         description="FunREC robots: describe the mobile manipulators that replay reconstructed interactions, plan "
         "their interactions with articulated parts and check the plans in simulation.",
     )
-    parser.add_argument("-v", "--verbose", action="store_true", help="log detail and show tracebacks of errors")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for add in _COMMANDS:
         add(sub)

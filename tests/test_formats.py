@@ -57,7 +57,7 @@ def test_articulation_round_trip(tmp_path: Path) -> None:
     twin = _twin()
     write_articulation(tmp_path / "articulation.json", twin)
     data = json.loads((tmp_path / "articulation.json").read_text())
-    assert data["format"] == "funrec-twin/1" and "pivot" not in data["parts"][1]
+    assert data["format"] == "funrec-twin/2" and "pivot" not in data["parts"][1]
     assert data["parts"][0]["pivot"] == [1.0, 2.0, 0.0]  # moved to the point closest to the origin
     back = read_articulation(tmp_path)
     assert back.frame_count == 10 and [p.name for p in back.parts] == ["part_0", "part_1"]

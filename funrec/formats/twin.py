@@ -16,8 +16,11 @@ from funrec.errors import FormatError
 from funrec.geometry.joints import JOINT_TYPES, closest_point_on_axis_to_origin, joint_transforms
 from funrec.typed import FloatArray, IntArray
 
-TWIN_FORMAT = "funrec-twin/1"
-"""Format tag written into and required from articulation.json."""
+TWIN_FORMAT = "funrec-twin/2"
+"""Format tag written into articulation.json. /2 adds the optional config.json (the settings,
+FunREC version and git commit a twin was made with); articulation.json itself is unchanged."""
+READABLE_TWIN_FORMATS = ("funrec-twin/1", TWIN_FORMAT)
+"""Format tags read_articulation accepts: a /1 twin is a /2 twin without config.json."""
 AXIS_NORM_TOL = 1e-3
 """How far from unit length a stored axis may be before the file is rejected."""
 
@@ -211,8 +214,8 @@ def read_articulation(path: str | Path) -> TwinArticulation:
     if path.is_dir():
         path = path / "articulation.json"
     data = read_json_object(path)
-    if data.get("format") != TWIN_FORMAT:
-        raise FormatError(path, f"format is {data.get('format')!r}, expected {TWIN_FORMAT!r}")
+    if data.get("format") not in READABLE_TWIN_FORMATS:
+        raise FormatError(path, f"format is {data.get('format')!r}, expected one of {list(READABLE_TWIN_FORMATS)}")
     frame_count = data.get("frame_count")
     if not isinstance(frame_count, int) or isinstance(frame_count, bool) or frame_count <= 0:
         raise FormatError(path, f"frame_count must be a positive integer, got {frame_count!r}")
@@ -247,6 +250,7 @@ def write_articulation(path: str | Path, twin: TwinArticulation) -> None:
 
 
 __all__ = [
+    "READABLE_TWIN_FORMATS",
     "TWIN_FORMAT",
     "ArticulatedPart",
     "TwinArticulation",

@@ -1,0 +1,90 @@
+"""What users expect of any command line: --version, -q/-v anywhere with unchanged exit codes, a
+short --help with the rest behind --help-all, a config dump, and the config recorded in the twin."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from funrec.config import config_from_dict, load_config_file
+from funrec.formats.twin_config import TWIN_CONFIG_FORMAT, twin_config_json, write_twin_config
+from funrec.version import funrec_version
+
+
+def _run(module: str, *args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", module, *args], capture_output=True, text=True, timeout=300)
+
+
+@pytest.mark.parametrize(("module", "prog"), [("funrec", "funrec"), ("funrec_robot", "funrec-robot")])
+def test_version(module: str, prog: str) -> None:
+    result = _run(module, "--version")
+    assert result.returncode == 0
+    assert result.stdout.startswith(f"{prog} {funrec_version()}")
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ("check", "MISSING"),
+        ("-v", "check", "MISSING"),
+        ("check", "MISSING", "-v"),
+        ("-q", "check", "MISSING"),
+        ("check", "--quiet", "MISSING"),
+    ],
+)
+def test_verbosity_anywhere_keeps_exit_code_2(args: tuple[str, ...], tmp_path: Path) -> None:
+    result = _run("funrec", *(str(tmp_path / a) if a == "MISSING" else a for a in args))
+    assert result.returncode == 2, result.stderr
+    assert "capture folder does not exist" in result.stderr.splitlines()[-1]
+    assert ("Traceback" in result.stderr) == ("-v" in args)
+
+
+def test_robot_cli_takes_verbosity_after_the_command(tmp_path: Path) -> None:
+    result = _run("funrec_robot", "describe", str(tmp_path / "no_robot.yaml"), "-q")
+    assert result.returncode == 2, result.stderr
+    assert _run("funrec_robot", "-v", "-q", "robots").returncode == 2  # exclusive: a usage error
+
+
+def test_reconstruct_help_is_short_and_help_all_complete() -> None:
+    short = _run("funrec", "reconstruct", "--help")
+    assert short.returncode == 0
+    assert len(short.stdout.splitlines()) < 120
+    for flag in ("--print-config", "--help-all", "--export-snap-axis-deg", "--no-align-gravity", "-q, --quiet"):
+        assert flag in short.stdout
+    assert short.stdout.index("common options") < short.stdout.index("--export-snap-axis-deg")
+    assert "--tracking-max-features" not in short.stdout
+    full = _run("funrec", "reconstruct", "--help-all")
+    assert full.returncode == 0 and "--tracking-max-features" in full.stdout
+    assert len(full.stdout.splitlines()) > 500
+
+
+def test_print_config_round_trips(tmp_path: Path) -> None:
+    from funrec.pipeline import ReconstructConfig
+
+    result = _run("funrec", "reconstruct", "--print-config", "--export-snap-axis-deg", "4", "--no-align-gravity")
+    assert result.returncode == 0, result.stderr
+    dumped = tmp_path / "config.json"
+    dumped.write_text(result.stdout)
+    config = load_config_file(ReconstructConfig, dumped)
+    assert config.export.snap_axis_deg == 4.0 and not config.align_gravity
+    again = _run("funrec", "reconstruct", "--print-config", "--config", str(dumped))
+    assert json.loads(again.stdout) == json.loads(result.stdout)
+    assert _run("funrec", "reconstruct", "--print-config", "-q").returncode == 0
+    missing = _run("funrec", "reconstruct", str(tmp_path))
+    assert missing.returncode == 2 and "-o/--output" in missing.stderr
+
+
+def test_twin_config_json_holds_config_version_and_commit(tmp_path: Path) -> None:
+    from funrec.pipeline import ReconstructConfig
+
+    config = ReconstructConfig(parts_per_fragment=2)
+    write_twin_config(tmp_path / "config.json", config)
+    data = json.loads((tmp_path / "config.json").read_text())
+    assert data["format"] == TWIN_CONFIG_FORMAT and data["funrec_version"] == funrec_version()
+    assert data["git_commit"] is None or len(data["git_commit"].removesuffix("-dirty")) == 40
+    assert config_from_dict(ReconstructConfig, data["config"]) == config
+    assert twin_config_json(config)["config"] == data["config"]
