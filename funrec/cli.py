@@ -84,8 +84,23 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
         args.parser.error("the following arguments are required: CAPTURE, -o/--output")
     with stage_bars() as progress:
         summary = reconstruct(args.capture, args.output, config, progress=progress, overwrite=args.overwrite)
+        if args.rerun is not None:
+            _write_rerun(args.output, args.rerun, args.capture, lambda done, total: progress("rerun", done, total))
     _print_summary(summary)
+    if args.rerun is not None:
+        print(f"  rerun recording: {args.rerun}")
     return 0
+
+
+def _write_rerun(twin: Path, rrd: Path, capture_dir: Path | None, progress: Callable[[int, int], None]) -> None:
+    """Write the rerun recording of a twin, with the frames of ``capture_dir`` (or of the capture
+    its config.json names) when there is one."""
+    from funrec.export.rerun_log import write_rerun
+    from funrec.formats.capture import load_capture
+    from funrec.formats.twin_config import recorded_capture
+
+    capture_dir = capture_dir if capture_dir is not None else recorded_capture(twin)
+    write_rerun(twin, rrd, None if capture_dir is None else load_capture(capture_dir), progress=progress)
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
@@ -185,9 +200,18 @@ def _cmd_export(args: argparse.Namespace) -> int:
     from funrec.export.simulation import ExportConfig, export_simulation
 
     base = load_config_file(ExportConfig, args.config) if args.config else None
-    exports = export_simulation(args.twin, config_from_args(ExportConfig, args, base))
-    written = ", ".join(str(p) for p in (exports.urdf, exports.mjcf, exports.usd) if p is not None)
-    print(f"wrote {written} ({exports.total_seconds:.1f} s)")
+    config = config_from_args(ExportConfig, args, base)
+    if args.rerun_only:
+        config = dataclasses.replace(config, formats=())
+    written = []
+    if config.formats:
+        exports = export_simulation(args.twin, config)
+        written = [str(p) for p in (exports.urdf, exports.mjcf, exports.usd, exports.glb) if p is not None]
+    if args.rerun is not None:
+        with progress_bar("rerun") as progress:
+            _write_rerun(args.twin, args.rerun, args.capture, progress)
+        written.append(str(args.rerun))
+    print(f"wrote {', '.join(written) or 'nothing'}")
     return 0
 
 
@@ -195,14 +219,21 @@ def _add_export(sub: Any, selected: bool) -> None:
     p = sub.add_parser(
         "export",
         usage="funrec export TWIN [--config FILE] [options]",
-        help="(re)write a twin's simulator exports: twin.urdf, twin.xml (MuJoCo), twin.usda",
-        description="Write twin.urdf (through yourdfpy), twin.xml (MuJoCo MJCF) and twin.usda (UsdPhysics "
-        "articulation) into a twin folder: a fixed base with the static mesh, one link per part with its revolute or "
+        help="(re)write a twin's exports: twin.urdf, twin.xml (MuJoCo), twin.usda, twin.glb; a rerun recording",
+        description="Write twin.urdf (through yourdfpy), twin.xml (MuJoCo MJCF), twin.usda (UsdPhysics "
+        "articulation) and twin.glb (meshes as named glTF nodes) into a twin folder: a fixed base with the static "
+        "mesh, one link per part with its revolute or "
         "prismatic joint and observed limits, convex collision pieces, mass and inertia from a density. "
         "funrec reconstruct already writes them; use this to re-export with other settings.",
     )
     p.add_argument("twin", type=Path, help="twin folder (holds articulation.json and meshes/)")
     p.add_argument("--config", type=Path, help="JSON or YAML file of ExportConfig fields (unknown keys are errors)")
+    p.add_argument("--rerun", type=Path, metavar="FILE.rrd",
+                   help="also write a rerun recording (pip install funrec[rerun]): RGB-D frames with part and hand "
+                   "masks, camera path, posed part meshes, joint states, contact point and grasp frame")
+    p.add_argument("--capture", type=Path,
+                   help="capture folder whose frames go into --rerun (default: the one the twin's config.json names)")
+    p.add_argument("--rerun-only", action="store_true", help="write only the --rerun recording, not the simulator files")
     _add_config_options(p, selected, "funrec.export.simulation", "ExportConfig")
     p.set_defaults(handler=_cmd_export)
 
@@ -399,6 +430,8 @@ def _add_reconstruct(sub: Any, selected: bool) -> None:
     p.add_argument("--config", type=Path, help="JSON or YAML file of ReconstructConfig fields (unknown keys are errors)")
     p.add_argument("--print-config", action="store_true",
                    help="print the full config (defaults, --config file and flags applied) as JSON and exit")
+    p.add_argument("--rerun", type=Path, metavar="FILE.rrd",
+                   help="also write a rerun recording of the twin and the capture (pip install funrec[rerun])")
     _add_config_options(p, selected, "funrec.pipeline", "ReconstructConfig", RECONSTRUCT_COMMON)
     p.set_defaults(parser=p)
     p.set_defaults(handler=_cmd_reconstruct)

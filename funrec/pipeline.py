@@ -413,7 +413,7 @@ def _reconstruct(capture_dir: str | Path, out_dir: str | Path, config: Reconstru
         write_fragments(writer.path("fragments.json"), fragments)
         writer.write_camera_poses(trajectory_twin.T_world_camera)
         writer.write_articulation(TwinArticulation(frame_count=len(capture), parts=tuple(parts)))
-        write_twin_config(writer.path(TWIN_CONFIG_FILE), config)
+        write_twin_config(writer.path(TWIN_CONFIG_FILE), config, capture_dir)
         timed("export", export_simulation, writer.root, config.export)
     summaries = tuple(
         PartSummary(p.name, p.joint_type, p.state_range, (int(p.frames[0]), int(p.frames[-1]))) for p in parts

@@ -17,6 +17,7 @@ import trimesh
 from funrec.errors import ExportError, FormatError
 from funrec.export.axis_snap import snap_axis
 from funrec.export.collision import CollisionConfig, decompose
+from funrec.export.glb import write_glb
 from funrec.export.mjcf import write_mjcf
 from funrec.export.sim_model import (
     MeshFiles,
@@ -37,9 +38,10 @@ from funrec.typed import FloatArray
 
 log = logging.getLogger(__name__)
 
-EXPORT_FORMATS = ("urdf", "mjcf", "usd")
-"""Simulator files export_simulation can write: twin.urdf, twin.xml and twin.usda."""
-URDF_NAME, MJCF_NAME, USD_NAME = "twin.urdf", "twin.xml", "twin.usda"
+EXPORT_FORMATS = ("urdf", "mjcf", "usd", "glb")
+"""Files export_simulation can write: twin.urdf, twin.xml, twin.usda and twin.glb (the meshes as
+binary glTF for viewers, no physics)."""
+URDF_NAME, MJCF_NAME, USD_NAME, GLB_NAME = "twin.urdf", "twin.xml", "twin.usda", "twin.glb"
 """File names inside the twin folder (FORMATS.md section 2)."""
 USD_BINARY_NAME = "twin.usdc"
 """The USD export's name when ExportConfig.usd_binary asks for binary USD (crate)."""
@@ -86,7 +88,7 @@ class ExportConfig:
     """(4, 4) row-major transform from the twin's world frame to the frame of the exported files
     (e.g. a gravity-aligned frame with z up); None is the identity."""
     formats: tuple[str, ...] = EXPORT_FORMATS
-    """Which files to write, a subset of ("urdf", "mjcf", "usd")."""
+    """Which files to write, a subset of ("urdf", "mjcf", "usd", "glb")."""
     snap_axis_deg: float = 0.0
     """Snap a joint axis within this many degrees of vertical (gravity) or of the floor plane to it
     in the exported files (articulation.json keeps the estimate), so a door hinge estimated a few
@@ -136,6 +138,8 @@ class SimulationExports:
     """twin.xml, or None if not requested."""
     usd: Path | None
     """twin.usda (or twin.usdc), or None if not requested."""
+    glb: Path | None
+    """twin.glb, or None if not requested."""
     mesh_files: MeshFiles
     """Visual and collision mesh files used by twin.urdf and twin.xml."""
     model: SimModel
@@ -174,12 +178,15 @@ def export_simulation(twin_dir: str | Path, config: ExportConfig = ExportConfig(
 
         usd_name = USD_BINARY_NAME if config.usd_binary else USD_NAME
         paths["usd"] = write_usd(model, twin_dir / usd_name)
+    if "glb" in config.formats:
+        paths["glb"] = write_glb(model, twin_dir / GLB_NAME)
     total = time.perf_counter() - start
     log.info("simulation exports of %s in %.1f s (decomposition %.1f s)", twin_dir, total, decomposition_seconds)
     return SimulationExports(
         urdf=paths["urdf"],
         mjcf=paths["mjcf"],
         usd=paths["usd"],
+        glb=paths["glb"],
         mesh_files=mesh_files,
         model=model,
         decomposition_seconds=decomposition_seconds,
@@ -332,6 +339,7 @@ def _load_mesh(twin_dir: Path, relative: str) -> trimesh.Trimesh:
 
 __all__ = [
     "EXPORT_FORMATS",
+    "GLB_NAME",
     "ExportConfig",
     "SimulationExports",
     "build_model",
