@@ -290,18 +290,22 @@ def _cmd_view(args: argparse.Namespace) -> int:
     from funrec.view import ViewConfig, serve_twin
 
     serve_twin(args.twin, args.host, args.port, config_from_args(ViewConfig, args),
-               on_ready=lambda url: print(f"viewing {args.twin} at {url} (Ctrl+C to stop)", flush=True))
+               on_ready=lambda url: print(f"viewing {args.twin} at {url} (Ctrl+C to stop)", flush=True),
+               capture_dir=args.capture)
     return 0
 
 
 def _add_view(sub: Any, selected: bool) -> None:
     p = sub.add_parser(
         "view",
-        help="show a twin in an interactive 3D viewer in the browser (viser), a slider per joint",
-        description="Serve the twin in the browser with viser (pip install funrec[view]): the static mesh, each part "
-        "moved by a slider over its observed range, the camera path as frustums and a polyline, contact points and "
-        "grasp frames. Runs until Ctrl+C.",
+        help="show a twin in an interactive 3D viewer in the browser (viser): replay the capture, move the joints",
+        description="Serve the twin in the browser with viser (pip install funrec[view]), aimed at the parts: the "
+        "static mesh, the parts highlighted, a time slider replaying the capture (part states, camera, hand points), "
+        "a slider per joint, and layers to toggle (camera path, frustums drawn as lines, contacts and grasp frames, "
+        "hands). Runs until Ctrl+C.",
     )
+    p.add_argument("--capture", type=Path,
+                   help="capture folder of the twin, for hand points and true frustums (default: from config.json)")
     p.add_argument("twin", type=Path, help="twin folder (holds articulation.json and meshes/)")
     p.add_argument("--port", type=int, default=8080, help="port of the web viewer (default: 8080)")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default: 127.0.0.1; 0.0.0.0 for other machines)")
