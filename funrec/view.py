@@ -66,6 +66,10 @@ class ViewConfig:
     """Colour the parts are drawn in, so they stand out from the scan of the room."""
     hand_points: int = 3000
     """Most hand points drawn at the current frame (back-projected hand mask pixels)."""
+    static_max_triangles: int = 150_000
+    """A static mesh with more triangles is decimated (quadric, Open3D) to this many for the
+    browser: a room scan has ~500k, which software WebGL (and a weak GPU) draws at a few seconds
+    per frame. 0 keeps every triangle."""
 
     def __post_init__(self) -> None:
         if self.frustum_every < 1 or self.slider_steps < 1 or not 0.0 < self.frustum_fov_deg < 180.0:
@@ -152,10 +156,26 @@ def import_viser() -> Any:
     return viser
 
 
-def _add_geometry(scene: Any, name: str, path: Path, colour: tuple[int, int, int] | None) -> Any:
-    """A mesh (its vertex colours, or ``colour`` when given) or a point cloud."""
+def _decimated(mesh: trimesh.Trimesh, max_triangles: int) -> trimesh.Trimesh:
+    """The mesh with at most ``max_triangles`` triangles (quadric decimation keeps vertex colours)."""
+    if max_triangles <= 0 or len(mesh.faces) <= max_triangles:
+        return mesh
+    import open3d as o3d
+
+    o3d_mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(np.asarray(mesh.vertices, dtype=np.float64)),
+                                         o3d.utility.Vector3iVector(np.asarray(mesh.faces, dtype=np.int32)))
+    if mesh.visual.kind == "vertex":
+        o3d_mesh.vertex_colors = o3d.utility.Vector3dVector(np.asarray(mesh.visual.vertex_colors)[:, :3] / 255.0)
+    small = o3d_mesh.simplify_quadric_decimation(max_triangles)
+    colours = (np.asarray(small.vertex_colors) * 255.0).astype(np.uint8) if small.has_vertex_colors() else None
+    return trimesh.Trimesh(np.asarray(small.vertices), np.asarray(small.triangles), vertex_colors=colours, process=False)
+
+
+def _add_geometry(scene: Any, name: str, path: Path, colour: tuple[int, int, int] | None, max_triangles: int = 0) -> Any:
+    """A mesh (its vertex colours, or ``colour`` when given; decimated to ``max_triangles``) or a point cloud."""
     geometry = load_ply(path)
     if isinstance(geometry, trimesh.Trimesh):
+        geometry = _decimated(geometry, max_triangles)
         if colour is None:
             return scene.add_mesh_trimesh(name, geometry)
         return scene.add_mesh_simple(name, np.asarray(geometry.vertices, dtype=np.float32),
@@ -301,7 +321,8 @@ def build_twin_view(
                     layers={layer: [] for layer in LAYERS}, hand_points_max=config.hand_points)
     scene = server.scene
     if articulation.static_mesh is not None:
-        view.nodes["/static"] = _add_geometry(scene, "/static", twin_dir / articulation.static_mesh, None)
+        view.nodes["/static"] = _add_geometry(scene, "/static", twin_dir / articulation.static_mesh, None,
+                                              config.static_max_triangles)
     for part in articulation.parts:
         base = f"/parts/{part.name}"
         view.part_nodes[part.name] = scene.add_frame(base, show_axes=False)

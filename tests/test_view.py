@@ -132,3 +132,14 @@ def test_missing_twin_file_names_it(tmp_path: Path) -> None:
             build_twin_view(server, tmp_path)
     finally:
         server.stop()
+
+
+def test_big_static_mesh_is_decimated_keeping_colours() -> None:
+    from funrec.view import _decimated
+
+    sphere = trimesh.creation.icosphere(subdivisions=5)  # 20480 triangles
+    sphere.visual.vertex_colors = np.tile([200, 30, 30, 255], (len(sphere.vertices), 1))
+    small = _decimated(sphere, 2000)
+    assert len(small.faces) <= 2000 and abs(small.area - sphere.area) / sphere.area < 0.02
+    assert np.abs(np.asarray(small.visual.vertex_colors)[:, :3].astype(int) - [200, 30, 30]).max() <= 2
+    assert _decimated(sphere, 0) is sphere
