@@ -90,7 +90,10 @@ def stage_bars(unit: str = "frame") -> Iterator[Callable[[str, int, int], None]]
     def close(stage: str) -> None:
         bar = bars[stage]
         if not interactive:
-            print(f"{stage.strip():>14}: {bar.n}/{bar.total} {unit}s in {time.perf_counter() - started[stage]:.1f} s", file=sys.stderr)
+            seconds = time.perf_counter() - started[stage]
+            # A stage without progress of its own reports 0/1 then 1/1: only its time means anything.
+            count = "done" if bar.total == 1 else f"{bar.n}/{bar.total} {unit}s"
+            print(f"{stage.strip():>14}: {count} in {seconds:.1f} s", file=sys.stderr)
         bar.close()
 
     def update(stage: str, done: int, total: int) -> None:

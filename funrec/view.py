@@ -139,12 +139,19 @@ class TwinView:
         camera.wxyz = vtf.SO3.from_matrix(T[:3, :3]).wxyz
         camera.position = T[:3, 3]
         if "/hands/points" in self.nodes:
-            self.nodes["/hands/points"].points = _hand_points(self, frame)
+            # An empty point cloud stalls the browser's renderer: keep one point, hidden.
+            points = _hand_points(self, frame)
+            node = self.nodes["/hands/points"]
+            node.points = points if len(points) else np.zeros((1, 3), np.float32)
+            box = self.checkboxes.get("hands")
+            node.visible = bool(len(points)) and (box is None or bool(box.value))
 
     def set_layer(self, layer: str, visible: bool) -> None:
         """Show or hide a layer (what its checkbox does)."""
         for node in self.layers.get(layer, []):
             node.visible = visible
+        if layer == "hands" and visible and self.time_slider is not None:
+            self.set_frame(int(self.time_slider.value))  # hides the hand again at a frame without one
 
 
 def import_viser() -> Any:
@@ -332,8 +339,8 @@ def build_twin_view(
     if (twin_dir / AFFORDANCES_FILE).is_file():
         _add_affordances(view, scene, read_affordances(twin_dir / AFFORDANCES_FILE), config)
     if capture is not None:
-        view.nodes["/hands/points"] = scene.add_point_cloud("/hands/points", np.zeros((0, 3), np.float32),
-                                                            colors=HAND_COLOUR, point_size=0.006)
+        view.nodes["/hands/points"] = scene.add_point_cloud("/hands/points", np.zeros((1, 3), np.float32),
+                                                            colors=HAND_COLOUR, point_size=0.006, visible=False)
         view.layers["hands"].append(view.nodes["/hands/points"])
     _add_gui(server, view, config)
     _aim_camera(server, view, twin_dir, articulation)

@@ -88,3 +88,17 @@ def test_twin_config_json_holds_config_version_and_commit(tmp_path: Path) -> Non
     assert data["git_commit"] is None or len(data["git_commit"].removesuffix("-dirty")) == 40
     assert config_from_dict(ReconstructConfig, data["config"]) == config
     assert twin_config_json(config)["config"] == data["config"]
+
+
+def test_a_stage_without_progress_is_named_while_it_runs(capsys: pytest.CaptureFixture[str]) -> None:
+    """The pipeline reports stages without progress of their own (export) as 0/1 then 1/1; the log
+    line names the stage and its time, not "1/1 frames"."""
+    from funrec.cli_runner import stage_bars
+
+    with stage_bars() as progress:
+        progress("affordances", 3, 3)
+        progress("export", 0, 1)
+        progress("export", 1, 1)
+    lines = capsys.readouterr().err.splitlines()
+    assert lines[0].strip().startswith("affordances: 3/3 frames in")
+    assert lines[1].strip().startswith("export: done in")

@@ -45,14 +45,19 @@ def browser(width: int = 960, height: int = 640):  # noqa: ANN201 - selenium Web
     return driver
 
 
-def settled_screenshot(driver, changed_from: np.ndarray | None = None) -> bytes:  # noqa: ANN001
+def settled_screenshot(driver, changed_from: np.ndarray | None = None, timeout_s: float = TIMEOUT_S) -> bytes:  # noqa: ANN001
     """A screenshot once the part pixels stop changing (and, with ``changed_from``, differ from
-    it): software WebGL takes seconds per frame here."""
-    deadline = time.monotonic() + TIMEOUT_S
-    previous = None
+    it): software WebGL takes seconds per frame here. Empty if the browser never answered."""
+    from selenium.common.exceptions import TimeoutException
+
+    deadline = time.monotonic() + timeout_s
+    previous, png = None, b""
     while time.monotonic() < deadline:
         time.sleep(SETTLE_S)
-        png = driver.get_screenshot_as_png()
+        try:
+            png = driver.get_screenshot_as_png()
+        except TimeoutException:  # the renderer busy drawing a frame in software for over 10 s
+            continue
         mask = part_pixels(png)
         stable = previous is not None and np.array_equal(mask, previous) and mask.sum() > 50
         if stable and (changed_from is None or not np.array_equal(mask, changed_from)):
