@@ -49,33 +49,46 @@ def test_robot_cli_takes_verbosity_after_the_command(tmp_path: Path) -> None:
     assert _run("funrec_robot", "-v", "-q", "robots").returncode == 2  # exclusive: a usage error
 
 
-def test_reconstruct_help_is_short_and_help_all_complete() -> None:
-    short = _run("funrec", "reconstruct", "--help")
-    assert short.returncode == 0
-    assert len(short.stdout.splitlines()) < 120
+def _main(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:
+    """funrec's main() in this process (the stage modules are imported once, not per call)."""
+    from funrec.cli import main
+
+    try:
+        code = main(list(args))
+    except SystemExit as exc:  # --help, --help-all and usage errors exit from argparse
+        code = int(exc.code or 0)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_reconstruct_help_is_short_and_help_all_complete(capsys: pytest.CaptureFixture[str]) -> None:
+    code, short, _ = _main(capsys, "reconstruct", "--help")
+    assert code == 0
+    assert len(short.splitlines()) < 120
     for flag in ("--print-config", "--help-all", "--export-snap-axis-deg", "--no-align-gravity", "-q, --quiet"):
-        assert flag in short.stdout
-    assert short.stdout.index("common options") < short.stdout.index("--export-snap-axis-deg")
-    assert "--tracking-max-features" not in short.stdout
-    full = _run("funrec", "reconstruct", "--help-all")
-    assert full.returncode == 0 and "--tracking-max-features" in full.stdout
-    assert len(full.stdout.splitlines()) > 500
+        assert flag in short
+    assert short.index("common options") < short.index("--export-snap-axis-deg")
+    assert "--tracking-max-features" not in short
+    code, full, _ = _main(capsys, "reconstruct", "--help-all")
+    assert code == 0 and "--tracking-max-features" in full
+    assert len(full.splitlines()) > 500
 
 
-def test_print_config_round_trips(tmp_path: Path) -> None:
+def test_print_config_round_trips(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from funrec.pipeline import ReconstructConfig
 
-    result = _run("funrec", "reconstruct", "--print-config", "--export-snap-axis-deg", "4", "--no-align-gravity")
-    assert result.returncode == 0, result.stderr
+    code, printed, err = _main(capsys, "reconstruct", "--print-config", "--export-snap-axis-deg", "4", "--no-align-gravity")
+    assert code == 0, err
     dumped = tmp_path / "config.json"
-    dumped.write_text(result.stdout)
+    dumped.write_text(printed)
     config = load_config_file(ReconstructConfig, dumped)
     assert config.export.snap_axis_deg == 4.0 and not config.align_gravity
-    again = _run("funrec", "reconstruct", "--print-config", "--config", str(dumped))
-    assert json.loads(again.stdout) == json.loads(result.stdout)
-    assert _run("funrec", "reconstruct", "--print-config", "-q").returncode == 0
-    missing = _run("funrec", "reconstruct", str(tmp_path))
-    assert missing.returncode == 2 and "-o/--output" in missing.stderr
+    # A --config file's values survive (flags not given do not reset them to the defaults).
+    code, again, _ = _main(capsys, "reconstruct", "--print-config", "--config", str(dumped))
+    assert json.loads(again) == json.loads(printed)
+    assert _main(capsys, "reconstruct", "--print-config", "-q")[0] == 0
+    code, _, err = _main(capsys, "reconstruct", str(tmp_path))
+    assert code == 2 and "-o/--output" in err
 
 
 def test_twin_config_json_holds_config_version_and_commit(tmp_path: Path) -> None:
