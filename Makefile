@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 export MUJOCO_GL ?= egl
 export PYOPENGL_PLATFORM ?= egl
 
-.PHONY: setup demo test test-slow bench lint clean
+.PHONY: setup demo test test-slow browser bench lint clean
 
 # Open3D needs libusb at import time; MuJoCo's offscreen renderer needs EGL or OSMesa.
 SYSTEM_LIBS := libusb-1.0-0 libegl1 libgl1 libosmesa6
@@ -31,7 +31,18 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
-test-slow: $(STAMP)
+# The slow suite drives `funrec view` in a real headless browser (tests/test_view_browser.py).
+BROWSER_PACKAGES := chromium chromium-driver
+
+browser:
+	@missing=""; for p in $(BROWSER_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
+	if [ -n "$$missing" ]; then \
+	  echo "installing system packages:$$missing"; \
+	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+	  $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq $$missing; \
+	fi
+
+test-slow: $(STAMP) browser
 	$(BIN)/python -m pytest -q -m slow
 
 bench: $(STAMP)

@@ -17,14 +17,37 @@ from typing import Any
 
 from funrec.cli_runner import progress_bar, run_command, stage_bars
 
+_ARGV: list[str] = []
+"""The arguments being parsed (set by build_parser)."""
+RECONSTRUCT_COMMON = (
+    "align_gravity",
+    "use_hand_masks",
+    "use_object_masks",
+    "parts_per_fragment",
+    "fusion.static_voxel_m",
+    "fusion.part_voxel_m",
+    "export.density_kg_m3",
+    "export.snap_axis_deg",
+    "export.usd_binary",
+)
+"""The reconstruct options ``--help`` lists: what a user changes about the result (frames, masks
+used, resolution, physics). The other ~260 are the stages' tuning knobs; they are accepted always
+and listed by ``--help-all`` or, as a config file, by ``--print-config``."""
 
-def _add_config_options(parser: argparse.ArgumentParser, selected: bool, module: str, config: str) -> None:
+
+def _add_config_options(
+    parser: argparse.ArgumentParser, selected: bool, module: str, config: str, common: tuple[str, ...] = ()
+) -> None:
     """Add a flag per field of the frozen config class ``module.config`` (help from its attribute
-    docstrings), importing the module only for the command being run: stage modules are slow to import."""
+    docstrings), importing the module only for the command being run: stage modules are slow to import.
+    With ``common``, ``--help`` lists only those flags and ``--help-all`` every one."""
+    if common:
+        parser.add_argument("--help-all", action="help", help="show the help of every stage option and exit")
     if selected:
         from funrec.config import add_config_arguments
 
-        add_config_arguments(parser, getattr(importlib.import_module(module), config))
+        show_all = not common or "--help-all" in _ARGV
+        add_config_arguments(parser, getattr(importlib.import_module(module), config), common=common, show_all=show_all)
 
 
 def _print_summary(summary: Any) -> None:
@@ -53,10 +76,34 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
 
     base = load_config_file(ReconstructConfig, args.config) if args.config else None
     config = config_from_args(ReconstructConfig, args, base)
+    if args.print_config:
+        import json
+
+        from funrec.config import config_to_dict
+
+        print(json.dumps(config_to_dict(config), indent=2))
+        return 0
+    if args.capture is None or args.output is None:
+        args.parser.error("the following arguments are required: CAPTURE, -o/--output")
     with stage_bars() as progress:
         summary = reconstruct(args.capture, args.output, config, progress=progress, overwrite=args.overwrite)
+        if args.rerun is not None:
+            _write_rerun(args.output, args.rerun, args.capture, lambda done, total: progress("rerun", done, total))
     _print_summary(summary)
+    if args.rerun is not None:
+        print(f"  rerun recording: {args.rerun}")
     return 0
+
+
+def _write_rerun(twin: Path, rrd: Path, capture_dir: Path | None, progress: Callable[[int, int], None]) -> None:
+    """Write the rerun recording of a twin, with the frames of ``capture_dir`` (or of the capture
+    its config.json names) when there is one."""
+    from funrec.export.rerun_log import write_rerun
+    from funrec.formats.capture import load_capture
+    from funrec.formats.twin_config import recorded_capture
+
+    capture_dir = capture_dir if capture_dir is not None else recorded_capture(twin)
+    write_rerun(twin, rrd, None if capture_dir is None else load_capture(capture_dir), progress=progress)
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
@@ -152,9 +199,18 @@ def _cmd_export(args: argparse.Namespace) -> int:
     from funrec.export.simulation import ExportConfig, export_simulation
 
     base = load_config_file(ExportConfig, args.config) if args.config else None
-    exports = export_simulation(args.twin, config_from_args(ExportConfig, args, base))
-    written = ", ".join(str(p) for p in (exports.urdf, exports.mjcf, exports.usd) if p is not None)
-    print(f"wrote {written} ({exports.total_seconds:.1f} s)")
+    config = config_from_args(ExportConfig, args, base)
+    if args.rerun_only:
+        config = dataclasses.replace(config, formats=())
+    written = []
+    if config.formats:
+        exports = export_simulation(args.twin, config)
+        written = [str(p) for p in (exports.urdf, exports.mjcf, exports.usd, exports.glb) if p is not None]
+    if args.rerun is not None:
+        with progress_bar("rerun") as progress:
+            _write_rerun(args.twin, args.rerun, args.capture, progress)
+        written.append(str(args.rerun))
+    print(f"wrote {', '.join(written) or 'nothing'}")
     return 0
 
 
@@ -162,14 +218,21 @@ def _add_export(sub: Any, selected: bool) -> None:
     p = sub.add_parser(
         "export",
         usage="funrec export TWIN [--config FILE] [options]",
-        help="(re)write a twin's simulator exports: twin.urdf, twin.xml (MuJoCo), twin.usda",
-        description="Write twin.urdf (through yourdfpy), twin.xml (MuJoCo MJCF) and twin.usda (UsdPhysics "
-        "articulation) into a twin folder: a fixed base with the static mesh, one link per part with its revolute or "
+        help="(re)write a twin's exports: twin.urdf, twin.xml (MuJoCo), twin.usda, twin.glb; a rerun recording",
+        description="Write twin.urdf (through yourdfpy), twin.xml (MuJoCo MJCF), twin.usda (UsdPhysics "
+        "articulation) and twin.glb (meshes as named glTF nodes) into a twin folder: a fixed base with the static "
+        "mesh, one link per part with its revolute or "
         "prismatic joint and observed limits, convex collision pieces, mass and inertia from a density. "
         "funrec reconstruct already writes them; use this to re-export with other settings.",
     )
     p.add_argument("twin", type=Path, help="twin folder (holds articulation.json and meshes/)")
     p.add_argument("--config", type=Path, help="JSON or YAML file of ExportConfig fields (unknown keys are errors)")
+    p.add_argument("--rerun", type=Path, metavar="FILE.rrd",
+                   help="also write a rerun recording (pip install funrec[rerun]): RGB-D frames with part and hand "
+                   "masks, camera path, posed part meshes, joint states, contact point and grasp frame")
+    p.add_argument("--capture", type=Path,
+                   help="capture folder whose frames go into --rerun (default: the one the twin's config.json names)")
+    p.add_argument("--rerun-only", action="store_true", help="write only the --rerun recording, not the simulator files")
     _add_config_options(p, selected, "funrec.export.simulation", "ExportConfig")
     p.set_defaults(handler=_cmd_export)
 
@@ -226,18 +289,22 @@ def _cmd_view(args: argparse.Namespace) -> int:
     from funrec.view import ViewConfig, serve_twin
 
     serve_twin(args.twin, args.host, args.port, config_from_args(ViewConfig, args),
-               on_ready=lambda url: print(f"viewing {args.twin} at {url} (Ctrl+C to stop)", flush=True))
+               on_ready=lambda url: print(f"viewing {args.twin} at {url} (Ctrl+C to stop)", flush=True),
+               capture_dir=args.capture)
     return 0
 
 
 def _add_view(sub: Any, selected: bool) -> None:
     p = sub.add_parser(
         "view",
-        help="show a twin in an interactive 3D viewer in the browser (viser), a slider per joint",
-        description="Serve the twin in the browser with viser (pip install funrec[view]): the static mesh, each part "
-        "moved by a slider over its observed range, the camera path as frustums and a polyline, contact points and "
-        "grasp frames. Runs until Ctrl+C.",
+        help="show a twin in an interactive 3D viewer in the browser (viser): replay the capture, move the joints",
+        description="Serve the twin in the browser with viser (pip install funrec[view]), aimed at the parts: the "
+        "static mesh, the parts highlighted, a time slider replaying the capture (part states, camera, hand points), "
+        "a slider per joint, and layers to toggle (camera path, frustums drawn as lines, contacts and grasp frames, "
+        "hands). Runs until Ctrl+C.",
     )
+    p.add_argument("--capture", type=Path,
+                   help="capture folder of the twin, for hand points and true frustums (default: from config.json)")
     p.add_argument("twin", type=Path, help="twin folder (holds articulation.json and meshes/)")
     p.add_argument("--port", type=int, default=8080, help="port of the web viewer (default: 8080)")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default: 127.0.0.1; 0.0.0.0 for other machines)")
@@ -351,17 +418,25 @@ def _add_bench(sub: Any, selected: bool) -> None:
 def _add_reconstruct(sub: Any, selected: bool) -> None:
     p = sub.add_parser(
         "reconstruct",
-        usage="funrec reconstruct CAPTURE -o TWIN [--overwrite] [--config FILE] [stage options]",
+        usage="funrec reconstruct CAPTURE -o TWIN [--overwrite] [--config FILE] [options]",
         help="reconstruct a functional twin from a capture folder",
         description="Track the camera, track points, find the part the person moved and its joint, segment "
-        "it in every frame, fuse meshes, and write a twin folder (FORMATS.md section 2). The twin is written "
-        "to a temporary folder and moved into place only when complete.",
+        "it in every frame, fuse meshes, and write a twin folder (FORMATS.md section 2) with the config it was "
+        "made with in config.json. The twin is written to a temporary folder and moved into place only when "
+        "complete.",
+        epilog="Every stage setting has a flag too (about 260): --help-all lists them, --print-config prints "
+        "them all as a config file to edit and pass back with --config.",
     )
-    p.add_argument("capture", type=Path, help="capture folder (FORMATS.md section 1)")
-    p.add_argument("-o", "--output", type=Path, required=True, help="twin folder to write")
+    p.add_argument("capture", type=Path, nargs="?", metavar="CAPTURE", help="capture folder (FORMATS.md section 1)")
+    p.add_argument("-o", "--output", type=Path, help="twin folder to write (required)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing twin folder")
     p.add_argument("--config", type=Path, help="JSON or YAML file of ReconstructConfig fields (unknown keys are errors)")
-    _add_config_options(p, selected, "funrec.pipeline", "ReconstructConfig")
+    p.add_argument("--print-config", action="store_true",
+                   help="print the full config (defaults, --config file and flags applied) as JSON and exit")
+    p.add_argument("--rerun", type=Path, metavar="FILE.rrd",
+                   help="also write a rerun recording of the twin and the capture (pip install funrec[rerun])")
+    _add_config_options(p, selected, "funrec.pipeline", "ReconstructConfig", RECONSTRUCT_COMMON)
+    p.set_defaults(parser=p)
     p.set_defaults(handler=_cmd_reconstruct)
 
 
@@ -400,9 +475,9 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
         prog="funrec",
         description="FunREC: functional digital twins from egocentric RGB-D interaction videos.",
     )
-    parser.add_argument("-v", "--verbose", action="store_true", help="log detail and show tracebacks of errors")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    words = [a for a in (sys.argv[1:] if argv is None else argv) if not a.startswith("-")]
+    _ARGV[:] = sys.argv[1:] if argv is None else argv
+    words = [a for a in _ARGV if not a.startswith("-")]
     for name, add in _COMMANDS.items():
         add(sub, bool(words) and words[0] == name)
     return parser

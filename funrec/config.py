@@ -53,44 +53,69 @@ def _scalar_type(annotation: Any) -> type | None:
     return None
 
 
-def add_config_arguments(parser: argparse.ArgumentParser, cls: type, prefix: str = "") -> None:
+def add_config_arguments(
+    parser: argparse.ArgumentParser, cls: type, prefix: str = "", common: tuple[str, ...] = (), show_all: bool = True
+) -> None:
     """Add one ``--field-name`` flag per scalar field of the config dataclass ``cls``.
 
     Help text and defaults come from the dataclass, so each option is defined once. Fields
     of nested config dataclasses get flags ``--nested-field-name`` in their own group.
+
+    Args:
+        parser: the (sub)command's parser.
+        cls: the config dataclass.
+        prefix: dotted prefix of the field names (for a config nested in another).
+        common: dotted field names (e.g. "export.snap_axis_deg") listed first, in a "common
+            options" group.
+        show_all: False hides the help of every other flag (it is still accepted).
     """
-    group = parser.add_argument_group(f"{cls.__name__} options")
-    _add_fields(parser, group, cls, prefix, cls())
+    groups = {prefix: parser.add_argument_group(f"{cls.__name__} options")}
+    if common:
+        groups["common"] = parser.add_argument_group("common options")
+    _add_fields(parser, groups, cls, prefix, cls(), set(common), show_all)
 
 
-def _add_fields(parser: argparse.ArgumentParser, group: Any, cls: type, prefix: str, defaults: Any) -> None:
+def _add_fields(
+    parser: argparse.ArgumentParser, groups: dict[str, Any], cls: type, prefix: str, defaults: Any,
+    common: set[str], show_all: bool,
+) -> None:
     docs = field_docs(cls)
     hints = typing.get_type_hints(cls)
+    group = groups[prefix]
     for field in dataclasses.fields(cls):
         annotation = hints[field.name]
         default = getattr(defaults, field.name)
         if dataclasses.is_dataclass(annotation):
-            sub = parser.add_argument_group(f"{field.name} options ({annotation.__name__})", docs.get(field.name))
-            _add_fields(parser, sub, annotation, f"{prefix}{field.name}.", default)
+            description = docs.get(field.name) if show_all else None
+            groups[f"{prefix}{field.name}."] = parser.add_argument_group(
+                f"{field.name} options ({annotation.__name__})", description
+            )
+            _add_fields(parser, groups, annotation, f"{prefix}{field.name}.", default, common, show_all)
             continue
         kind = _scalar_type(annotation)
         if kind is None:
             continue
         flag = "--" + (prefix + field.name).replace("_", "-").replace(".", "-")
         help_text = f"{docs.get(field.name, '')} (default: {default})".replace("%", "%%")
+        target = group
+        if prefix + field.name in common:
+            target = groups["common"]
+        elif not show_all:
+            help_text = argparse.SUPPRESS
         if kind is bool:
-            group.add_argument(
-                flag, dest=prefix + field.name, action=argparse.BooleanOptionalAction, default=default, help=help_text
+            target.add_argument(
+                flag, dest=prefix + field.name, action=argparse.BooleanOptionalAction, default=argparse.SUPPRESS, help=help_text
             )
         else:
-            group.add_argument(
-                flag, dest=prefix + field.name, type=kind, default=default, metavar=kind.__name__.upper(), help=help_text
+            target.add_argument(
+                flag, dest=prefix + field.name, type=kind, default=argparse.SUPPRESS, metavar=kind.__name__.upper(), help=help_text
             )
 
 
 def config_from_args(cls: type[ConfigT], args: argparse.Namespace, base: ConfigT | None = None) -> ConfigT:
-    """Build a config from flags added by :func:`add_config_arguments`; fields without a flag
-    keep the value of ``base`` (default: ``cls()``)."""
+    """Build a config from flags added by :func:`add_config_arguments`; fields whose flag was not
+    given keep the value of ``base`` (default: ``cls()``), e.g. of a ``--config`` file (the flags
+    have no argparse default, so an absent flag cannot overwrite the file's value)."""
     return _replace_from(vars(args), cls, base if base is not None else cls(), "")
 
 
@@ -106,6 +131,19 @@ def _replace_from(values: dict[str, Any], cls: type, config: Any, prefix: str) -
         elif prefix + field.name in values:
             changes[field.name] = values[prefix + field.name]
     return dataclasses.replace(config, **changes)
+
+
+def config_to_dict(config: Any) -> dict[str, Any]:
+    """A (nested) config as plain JSON-able data that :func:`config_from_dict` reads back."""
+
+    def plain(value: Any) -> Any:
+        if isinstance(value, (tuple, list)):
+            return [plain(v) for v in value]
+        if isinstance(value, dict):
+            return {k: plain(v) for k, v in value.items()}
+        return value
+
+    return {k: plain(v) for k, v in dataclasses.asdict(config).items()}
 
 
 def config_from_dict(cls: type[ConfigT], data: dict[str, Any], source: str = "config") -> ConfigT:
@@ -144,4 +182,11 @@ def load_config_file(cls: type[ConfigT], path: str | Path) -> ConfigT:
     return config_from_dict(cls, data, str(path))
 
 
-__all__ = ["add_config_arguments", "config_from_args", "config_from_dict", "field_docs", "load_config_file"]
+__all__ = [
+    "add_config_arguments",
+    "config_from_args",
+    "config_from_dict",
+    "config_to_dict",
+    "field_docs",
+    "load_config_file",
+]

@@ -6,6 +6,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -34,6 +35,8 @@ class RenderConfig:
     """Colour of the articulated parts (the static scene keeps its export colour)."""
     gif_frame_s: float = 0.4
     """Time each image is shown in the GIF, seconds."""
+    label: bool = True
+    """Write the part name and joint state on each image (a band along the top)."""
 
 
 def _view(T_world_camera: np.ndarray, target: np.ndarray) -> tuple[float, float, float]:
@@ -87,10 +90,13 @@ def render_twin(twin_dir: str | Path, out_dir: str | Path, config: RenderConfig 
     camera.type = mujoco.mjtCamera.mjCAMERA_FREE
     with mujoco.Renderer(model, config.height, config.width) as renderer:
 
-        def shoot(path: Path) -> None:
+        def shoot(path: Path, label: str) -> None:
             mujoco.mj_forward(model, data)
             renderer.update_scene(data, camera)
-            Image.fromarray(renderer.render()).save(path)
+            image = Image.fromarray(renderer.render())
+            if config.label:
+                _draw_label(image, label)
+            image.save(path)
             written.append(path)
 
         for part in articulation.parts:
@@ -110,7 +116,7 @@ def render_twin(twin_dir: str | Path, out_dir: str | Path, config: RenderConfig 
             camera.distance = distance * config.zoom_out
 
         aim(articulation.parts[0] if articulation.parts else None)
-        shoot(out_dir / "overview.png")
+        shoot(out_dir / "overview.png", "overview: every part at its canonical state (0)")
         for part in articulation.parts:
             aim(part)  # each part from its own viewpoint: parts of one room may be metres apart
             joint = model.joint(part.name)
@@ -118,7 +124,7 @@ def render_twin(twin_dir: str | Path, out_dir: str | Path, config: RenderConfig 
             for k, state in enumerate(np.linspace(lower, upper, config.states)):
                 data.qpos[:] = 0.0
                 data.qpos[model.jnt_qposadr[joint.id]] = state
-                shoot(out_dir / f"{part.name}_state{k}.png")
+                shoot(out_dir / f"{part.name}_state{k}.png", _state_label(part, float(state)))
             data.qpos[:] = 0.0
     images = [Image.open(path) for path in written]
     gif = out_dir / "twin.gif"
@@ -126,6 +132,24 @@ def render_twin(twin_dir: str | Path, out_dir: str | Path, config: RenderConfig 
     written.append(gif)
     log.info("rendered %d images of %s", len(written) - 1, twin_dir)
     return written
+
+
+def _state_label(part: ArticulatedPart, state: float) -> str:
+    """E.g. ``part_0 (revolute) state 0.785 rad (45.0 deg)`` or ``part_1 (prismatic) state 0.120 m``."""
+    if part.joint_type == "revolute":
+        return f"{part.name} ({part.joint_type}) state {state:.3f} rad ({np.degrees(state):.1f} deg)"
+    return f"{part.name} ({part.joint_type}) state {state:.3f} m"
+
+
+def _draw_label(image: Any, text: str) -> None:
+    """Write ``text`` in white on a dark band along the top of a PIL image."""
+    from PIL import ImageDraw, ImageFont
+
+    font = ImageFont.load_default(size=max(10, image.height // 28))
+    draw = ImageDraw.Draw(image)
+    band = int(font.size * 1.6)
+    draw.rectangle([0, 0, image.width, band], fill=(20, 20, 20))
+    draw.text((int(font.size * 0.5), int(font.size * 0.3)), text, fill=(255, 255, 255), font=font)
 
 
 __all__ = ["RenderConfig", "render_twin"]

@@ -461,7 +461,6 @@ def build_parser() -> argparse.ArgumentParser:
         description="FunREC robots: describe the mobile manipulators that replay reconstructed interactions, plan "
         "their interactions with articulated parts and check the plans in simulation.",
     )
-    parser.add_argument("-v", "--verbose", action="store_true", help="log detail and show tracebacks of errors")
     parser.add_argument("--models", action=_ModelsFolder, metavar="DIR",
                         help="folder of third-party robot models that robot files name as models://... "
                         "(default: the environment variable FUNREC_ROBOT_MODELS)")

@@ -30,7 +30,7 @@ def test_help_is_fast_and_lists_commands() -> None:
 
 
 def test_reconstruct_help_documents_stage_options() -> None:
-    result = _funrec("reconstruct", "--help")
+    result = _funrec("reconstruct", "--help-all")  # --help lists the common ones (tests/test_cli_habits.py)
     assert result.returncode == 0
     assert "--tracking-max-features" in result.stdout and "--no-use-hand-masks" in result.stdout
 

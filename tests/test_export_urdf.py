@@ -114,7 +114,9 @@ def test_urdf_joints_limits_and_dynamics(urdf_export: SimulationExports) -> None
         and drawer.limit.velocity == FAST_EXPORT.prismatic_velocity_m_s
     )
     assert float(door.dynamics.damping) == FAST_EXPORT.revolute_damping  # yourdfpy keeps it a string
-    assert urdf.link_map["static"].inertial is None
+    assert urdf.link_map["static"].inertial is not None and urdf.link_map["world"].inertial is None
+    assert urdf.joint_map["world_to_static"].type == "fixed"
+    assert float(door.dynamics.friction) >= FAST_EXPORT.revolute_friction_nm
     assert len(urdf.link_map["static"].collisions) == len(urdf_export.model.base.collision) > 0
 
 
@@ -201,7 +203,7 @@ def test_static_only_twin_exports_a_fixed_model(tmp_path: Path) -> None:
     exports = export(tmp_path, dataclasses.replace(FAST_EXPORT, formats=("urdf",)), with_parts=False)
     assert exports.urdf is not None
     urdf = yourdfpy.URDF.load(str(exports.urdf), load_meshes=False)
-    assert list(urdf.link_map) == ["static"] and not urdf.joint_map
+    assert list(urdf.link_map) == ["world", "static"] and list(urdf.joint_map) == ["world_to_static"]
     assert pin.buildModelFromUrdf(str(exports.urdf)).nq == 0
 
 

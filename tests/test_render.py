@@ -35,3 +35,16 @@ def test_render_shows_the_part_moving(tmp_path: Path) -> None:
     assert first.shape == (240, 320, 3)
     # The door swings across its range: a few percent of the picture changes (the door covers ~15 %).
     assert np.mean(np.abs(first - last).max(axis=2) > 10) > 0.02
+    # Each image is labelled along the top: a dark band with white text (the part name and state).
+    band = first[:12]
+    assert np.mean(band.max(axis=2) < 40) > 0.5 and (band.min(axis=2) > 200).any()
+
+
+def test_render_labels_part_and_state(tmp_path: Path) -> None:
+    from funrec.formats.twin import make_part
+    from funrec.render import _state_label
+
+    door = make_part("part_0", "revolute", [0.0, 0.0, 1.0], [0.0, 0.0, 0.0], [0, 1], [0.0, np.pi / 4])
+    drawer = make_part("part_1", "prismatic", [1.0, 0.0, 0.0], None, [0, 1], [0.0, 0.12])
+    assert _state_label(door, np.pi / 4) == "part_0 (revolute) state 0.785 rad (45.0 deg)"
+    assert _state_label(drawer, 0.12) == "part_1 (prismatic) state 0.120 m"

@@ -37,7 +37,8 @@ class MassProperties:
     volume_m3: float
     """Volume (m^3) the mass was computed from."""
     source: str
-    """"mesh" (the visual mesh is watertight) or "collision" (sum over the convex pieces)."""
+    """"mesh" (the visual mesh is watertight), "collision" (sum over the convex pieces) or
+    "nominal" (a static base without pieces, see :func:`static_mass_properties`)."""
 
     def __post_init__(self) -> None:
         if np.shape(self.com_link) != (3,) or np.shape(self.inertia_link) != (3, 3):
@@ -66,8 +67,10 @@ class SimLink:
     """Visual mesh in the link frame (None when the twin has no static mesh)."""
     collision: tuple[trimesh.Trimesh, ...]
     """Convex collision pieces in the link frame."""
-    mass: MassProperties | None
-    """Mass properties; None for the fixed static base, which never moves."""
+    mass: MassProperties
+    """Mass properties. The static base is welded to the world, so its mass never acts; it has one
+    anyway because URDF tools (pybullet, Isaac Lab's importer) treat a link without one as massless
+    and warn or fail (see :func:`static_mass_properties`)."""
 
     def __post_init__(self) -> None:
         if np.shape(self.T_export_link) != (4, 4):
@@ -98,6 +101,9 @@ class SimJoint:
     """Velocity limit (rad/s or m/s)."""
     damping: float
     """Viscous damping (N m s/rad or N s/m)."""
+    friction: float
+    """Coulomb (dry) friction of the joint (N m or N): the largest load the joint resists at
+    rest. URDF ``<dynamics friction>``, MJCF ``frictionloss``, USD ``funrec:jointFriction``."""
     armature: float
     """Rotor inertia added to the joint (kg m^2 or kg); MJCF only."""
 
@@ -204,6 +210,55 @@ def mass_properties(
     )
 
 
+STATIC_NOMINAL_MASS_KG = 1.0
+"""Mass given to a static base without collision pieces (it is welded to the world)."""
+
+
+def static_mass_properties(collision: tuple[trimesh.Trimesh, ...], density_kg_m3: float) -> MassProperties:
+    """Mass properties of the static base: its convex pieces at ``density_kg_m3``, or a nominal
+    1 kg point-like body at the origin when it has none. Only tools that insist on an inertial
+    read it; the base never moves."""
+    if collision:
+        return mass_properties(trimesh.Trimesh(), collision, density_kg_m3)
+    return MassProperties(
+        mass_kg=STATIC_NOMINAL_MASS_KG,
+        com_link=np.zeros(3),
+        inertia_link=np.eye(3) * 1e-3,
+        volume_m3=0.0,
+        source="nominal",
+    )
+
+
+def gravity_load(link: SimLink, joint: SimJoint, gravity_export: FloatArray, samples: int = 33) -> float:
+    """Largest gravity load on a joint over its range: |torque about the axis| (N m) of a revolute
+    joint, |force along the axis| (N) of a prismatic one.
+
+    Args:
+        link: the part link moved by ``joint`` (its mass properties, link frame).
+        joint: the joint; its frame is the link frame at state 0, axis +z.
+        gravity_export: (3,) gravitational acceleration in the export frame (m/s^2).
+        samples: states sampled evenly over [lower, upper].
+
+    Returns:
+        The largest load over the sampled states (N m or N).
+    """
+    g = np.asarray(gravity_export, dtype=np.float64)
+    force_export = link.mass.mass_kg * g
+    R_export_joint = joint.T_parent_joint[:3, :3]
+    axis_export = R_export_joint[:, 2]
+    if joint.joint_type == "prismatic":
+        return abs(float(force_export @ axis_export))
+    # About the axis through the joint origin: torque = ((R(s) c) x F) . a with c the centre of
+    # mass in the joint frame; only the rotation about z changes with s.
+    force_joint = R_export_joint.T @ force_export
+    c = link.mass.com_link
+    s = np.linspace(joint.lower, joint.upper, samples)
+    cx = np.cos(s) * c[0] - np.sin(s) * c[1]
+    cy = np.sin(s) * c[0] + np.cos(s) * c[1]
+    torque_z = cx * force_joint[1] - cy * force_joint[0]
+    return float(np.abs(torque_z).max())
+
+
 def to_link_frame(mesh: trimesh.Trimesh, T_world_link: FloatArray) -> trimesh.Trimesh:
     """A copy of a world-frame mesh expressed in a link frame (``p_link = T_link_world p_world``)."""
     moved = mesh.copy()
@@ -270,8 +325,10 @@ __all__ = [
     "SimJoint",
     "SimLink",
     "SimModel",
+    "gravity_load",
     "mass_properties",
     "part_link_frame",
+    "static_mass_properties",
     "to_link_frame",
     "write_mesh_files",
     "write_obj",

@@ -13,6 +13,11 @@ from funrec.geometry.transforms import make_transform
 
 URDF_JOINT_TYPES = {"revolute": "revolute", "prismatic": "prismatic"}
 """FunREC joint type -> URDF joint type."""
+WORLD_LINK = "world"
+"""The massless root link; loaders that fix a massless root (pybullet, Isaac Lab, Gazebo) keep the
+twin where it is without a ``useFixedBase`` flag."""
+WORLD_JOINT = "world_to_static"
+"""The fixed joint from WORLD_LINK to the static link."""
 
 
 def build_urdf(model: SimModel, mesh_files: MeshFiles) -> yourdfpy.URDF:
@@ -25,8 +30,9 @@ def build_urdf(model: SimModel, mesh_files: MeshFiles) -> yourdfpy.URDF:
     Returns:
         A yourdfpy.URDF whose links and joints mirror ``model``.
     """
-    links = [_link(link, mesh_files) for link in (model.base, *model.parts)]
-    joints = [_joint(joint) for joint in model.joints]
+    links = [yourdfpy.Link(name=WORLD_LINK), *(_link(link, mesh_files) for link in (model.base, *model.parts))]
+    world = yourdfpy.Joint(name=WORLD_JOINT, type="fixed", parent=WORLD_LINK, child=model.base.name, origin=np.eye(4))
+    joints = [world, *(_joint(joint) for joint in model.joints)]
     robot = yourdfpy.Robot(name=model.name, links=links, joints=joints)
     return yourdfpy.URDF(
         robot=robot,
@@ -39,11 +45,13 @@ def build_urdf(model: SimModel, mesh_files: MeshFiles) -> yourdfpy.URDF:
 def write_urdf(model: SimModel, mesh_files: MeshFiles, path: str | Path) -> Path:
     """Write twin.urdf.
 
-    Links: "static" (the base; its frame is the export frame, no <inertial> since it is fixed)
-    and one per part whose frame is the part's joint frame at the canonical state (see
-    :class:`~funrec.export.sim_model.SimModel`). Each joint is named as its part, with axis
-    (0, 0, 1) and its origin at the part's link frame, so ``q = s`` puts the part where the joint
-    transform of articulation.json puts it. Meshes are referenced by paths relative to the URDF.
+    Links: "world" (massless, the root), "static" (the base, fixed to "world" by the joint
+    "world_to_static"; its frame is the export frame) and one per part whose frame is the part's
+    joint frame at the canonical state (see :class:`~funrec.export.sim_model.SimModel`). Every
+    link but "world" has an <inertial>. Each joint is named as its part, with axis (0, 0, 1), its
+    origin at the part's link frame, damping and Coulomb friction in <dynamics>, so ``q = s``
+    puts the part where the joint transform of articulation.json puts it. Meshes are referenced
+    by paths relative to the URDF.
 
     Args:
         model: the simulator-neutral model.
@@ -80,13 +88,11 @@ def _link(link: SimLink, mesh_files: MeshFiles) -> yourdfpy.Link:
         yourdfpy.Collision(name=f"{link.name}_collision_{i:03d}", origin=np.eye(4), geometry=_mesh_geometry(filename))
         for i, filename in enumerate(mesh_files.collision.get(link.name, ()))
     ]
-    inertial = None
-    if link.mass is not None:
-        inertial = yourdfpy.Inertial(
-            origin=make_transform(np.eye(3), link.mass.com_link),
-            mass=float(link.mass.mass_kg),
-            inertia=np.asarray(link.mass.inertia_link, dtype=np.float64),
-        )
+    inertial = yourdfpy.Inertial(
+        origin=make_transform(np.eye(3), link.mass.com_link),
+        mass=float(link.mass.mass_kg),
+        inertia=np.asarray(link.mass.inertia_link, dtype=np.float64),
+    )
     return yourdfpy.Link(name=link.name, inertial=inertial, visuals=visuals, collisions=collisions)
 
 
@@ -98,7 +104,7 @@ def _joint(joint: SimJoint) -> yourdfpy.Joint:
         child=joint.child,
         origin=np.asarray(joint.T_parent_joint, dtype=np.float64),
         axis=np.array([0.0, 0.0, 1.0]),
-        dynamics=yourdfpy.Dynamics(damping=float(joint.damping), friction=0.0),
+        dynamics=yourdfpy.Dynamics(damping=float(joint.damping), friction=float(joint.friction)),
         limit=yourdfpy.Limit(
             effort=float(joint.effort),
             velocity=float(joint.velocity),
@@ -108,4 +114,4 @@ def _joint(joint: SimJoint) -> yourdfpy.Joint:
     )
 
 
-__all__ = ["build_urdf", "write_urdf"]
+__all__ = ["WORLD_JOINT", "WORLD_LINK", "build_urdf", "write_urdf"]

@@ -19,6 +19,13 @@ GRAVITY_M_S2 = 9.81
 """Magnitude of the physics scene's gravity, along -z of the export frame."""
 JOINT_AXIS = "Z"
 """Joint axis token: every joint frame has the joint axis as its local z."""
+FRICTION_ATTR = "funrec:jointFriction"
+"""Joint attribute holding the Coulomb friction of the joint (N m or N, as SimJoint.friction).
+UsdPhysics has no joint friction; PhysX's ``physxJoint:jointFriction`` is a unitless coefficient
+of the joint's constraint force, not a torque, so the value is kept in FunREC's own namespace."""
+MAX_VELOCITY_ATTR = "physxJoint:maxJointVelocity"
+"""PhysX joint velocity limit, degrees/s (revolute) or m/s (prismatic), as Isaac Sim's URDF
+importer writes it."""
 
 
 def write_usd(model: SimModel, path: str | Path) -> Path:
@@ -30,8 +37,9 @@ def write_usd(model: SimModel, path: str | Path) -> Path:
     ``collision`` pieces (CollisionAPI, approximation "convexHull", purpose "guide"), all in the
     link frame. ``joints/<part>`` is a RevoluteJoint or PrismaticJoint with axis "Z": its frame is
     the part's link frame (localPos0/localRot0 in the static body, identity in the part), its
-    limits are in degrees (revolute) or metres (prismatic), and a zero-stiffness DriveAPI carries
-    the joint damping. Stage: metersPerUnit 1, kilogramsPerUnit 1, upAxis Z, and a
+    limits are in degrees (revolute) or metres (prismatic), a zero-stiffness DriveAPI carries
+    the joint damping, ``physxJoint:maxJointVelocity`` the velocity limit and
+    ``funrec:jointFriction`` the Coulomb friction (see FRICTION_ATTR). Stage: metersPerUnit 1, kilogramsPerUnit 1, upAxis Z, and a
     ``/physicsScene`` with gravity along -z.
 
     Args:
@@ -81,14 +89,13 @@ def _define_body(stage: Usd.Stage, body_path: Sdf.Path, link: SimLink) -> Sdf.Pa
     )
     prim = body.GetPrim()
     UsdPhysics.RigidBodyAPI.Apply(prim)
-    if link.mass is not None:
-        mass_api = UsdPhysics.MassAPI.Apply(prim)
-        moments, R_link_principal = link.mass.principal_axes()
-        principal_xyzw = Rotation.from_matrix(R_link_principal).as_quat()
-        mass_api.CreateMassAttr(float(link.mass.mass_kg))
-        mass_api.CreateCenterOfMassAttr(Gf.Vec3f(*map(float, link.mass.com_link)))
-        mass_api.CreateDiagonalInertiaAttr(Gf.Vec3f(*map(float, moments)))
-        mass_api.CreatePrincipalAxesAttr(Gf.Quatf(float(principal_xyzw[3]), Gf.Vec3f(*map(float, principal_xyzw[:3]))))
+    mass_api = UsdPhysics.MassAPI.Apply(prim)
+    moments, R_link_principal = link.mass.principal_axes()
+    principal_xyzw = Rotation.from_matrix(R_link_principal).as_quat()
+    mass_api.CreateMassAttr(float(link.mass.mass_kg))
+    mass_api.CreateCenterOfMassAttr(Gf.Vec3f(*map(float, link.mass.com_link)))
+    mass_api.CreateDiagonalInertiaAttr(Gf.Vec3f(*map(float, moments)))
+    mass_api.CreatePrincipalAxesAttr(Gf.Quatf(float(principal_xyzw[3]), Gf.Vec3f(*map(float, principal_xyzw[:3]))))
     if link.visual is not None:
         _define_mesh(stage, body_path.AppendChild("visual"), link.visual)
     collision_path = body_path.AppendChild("collision")
@@ -144,6 +151,10 @@ def _define_joint(stage: Usd.Stage, joint_path: Sdf.Path, joint: SimJoint, body_
     drive.CreateStiffnessAttr(0.0)
     drive.CreateDampingAttr(float(joint.damping * (math.pi / 180.0 if revolute else 1.0)))
     drive.CreateMaxForceAttr(float(joint.effort))
+    prim = usd_joint.GetPrim()
+    velocity = math.degrees(joint.velocity) if revolute else joint.velocity
+    prim.CreateAttribute(MAX_VELOCITY_ATTR, Sdf.ValueTypeNames.Float).Set(float(velocity))
+    prim.CreateAttribute(FRICTION_ATTR, Sdf.ValueTypeNames.Float).Set(float(joint.friction))
 
 
 def _pos_rot(T_a_b: FloatArray) -> tuple[Gf.Vec3f, Gf.Quatf]:
@@ -155,4 +166,4 @@ def _pos_rot(T_a_b: FloatArray) -> tuple[Gf.Vec3f, Gf.Quatf]:
     )
 
 
-__all__ = ["write_usd"]
+__all__ = ["FRICTION_ATTR", "MAX_VELOCITY_ATTR", "write_usd"]

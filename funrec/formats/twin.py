@@ -17,7 +17,11 @@ from funrec.geometry.joints import JOINT_TYPES, closest_point_on_axis_to_origin,
 from funrec.typed import FloatArray, IntArray
 
 TWIN_FORMAT = "funrec-twin/1"
-"""Format tag written into and required from articulation.json."""
+"""Format tag written into articulation.json (docs/formats.md section 2, the scorers' contract).
+The optional config.json beside it has a tag of its own (funrec-config/1, section 10): a new
+file in the twin folder, not a change of articulation.json, which outside scorers read as /1."""
+READABLE_TWIN_FORMATS = (TWIN_FORMAT,)
+"""Format tags read_articulation accepts."""
 AXIS_NORM_TOL = 1e-3
 """How far from unit length a stored axis may be before the file is rejected."""
 
@@ -211,8 +215,8 @@ def read_articulation(path: str | Path) -> TwinArticulation:
     if path.is_dir():
         path = path / "articulation.json"
     data = read_json_object(path)
-    if data.get("format") != TWIN_FORMAT:
-        raise FormatError(path, f"format is {data.get('format')!r}, expected {TWIN_FORMAT!r}")
+    if data.get("format") not in READABLE_TWIN_FORMATS:
+        raise FormatError(path, f"format is {data.get('format')!r}, expected one of {list(READABLE_TWIN_FORMATS)}")
     frame_count = data.get("frame_count")
     if not isinstance(frame_count, int) or isinstance(frame_count, bool) or frame_count <= 0:
         raise FormatError(path, f"frame_count must be a positive integer, got {frame_count!r}")
@@ -247,6 +251,7 @@ def write_articulation(path: str | Path, twin: TwinArticulation) -> None:
 
 
 __all__ = [
+    "READABLE_TWIN_FORMATS",
     "TWIN_FORMAT",
     "ArticulatedPart",
     "TwinArticulation",
