@@ -18,7 +18,7 @@ if TYPE_CHECKING:
     from funrec.formats.twin import ArticulatedPart, TwinArticulation, read_articulation, write_articulation
     from funrec.pipeline import ReconstructConfig, ReconstructionSummary, reconstruct
 
-__version__ = "0.1.0"
+from funrec.version import SOURCE_VERSION as __version__  # noqa: E402, F401 (re-exported; version.py needs only the standard library)
 
 _MODULE_OF = {
     "CaptureError": "errors",

@@ -8,18 +8,18 @@ from functools import cache
 from importlib import metadata
 from pathlib import Path
 
+SOURCE_VERSION = "0.1.0"
+"""The version of this source tree (pyproject.toml's); ``funrec.__version__``."""
 GIT_TIMEOUT_S = 5.0
 """Longest wait for ``git rev-parse`` (a network file system can be slow)."""
 
 
 def funrec_version() -> str:
-    """The installed distribution's version, or ``funrec.__version__`` when it is not installed."""
+    """The installed distribution's version, or the source tree's when it is not installed."""
     try:
         return metadata.version("funrec")
     except metadata.PackageNotFoundError:
-        from funrec import __version__
-
-        return __version__
+        return SOURCE_VERSION
 
 
 @cache
