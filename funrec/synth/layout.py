@@ -147,17 +147,19 @@ def _kitchen(mats: MaterialBank, palette: Palette, requests: tuple[PartRequest, 
     run = float(lefts[-1] - offset)
     targets: dict[int, Front] = {}
     wall_z = float(rng.uniform(1.45, 1.55))
+    stone = rng.random() < 0.6
     counter = mats.textured(
-        "speckle" if rng.random() < 0.6 else "wood",
+        "speckle" if stone else "wood",
         mats.pick(((0.35, 0.35, 0.36), (0.8, 0.78, 0.74), (0.55, 0.45, 0.35))),
         0.8,
+        paintable=not stone,  # laminate in a plain kitchen; stone keeps its grain
     )
     geoms = [
         box((offset - 0.01, -depth - 0.03, height), (offset + run + 0.01, 0.0, height + 0.035), counter),
         box(
             (offset, -0.012, height + 0.035),
             (offset + run, 0.0, wall_z),
-            mats.textured("tiles", mats.pick(PAINTS), float(rng.uniform(0.4, 0.9))),
+            mats.textured("tiles", mats.pick(PAINTS), float(rng.uniform(0.4, 0.9)), paintable=True),
         ),
     ]
     micro_x = None
@@ -244,7 +246,11 @@ def _tiny(mats: MaterialBank, palette: Palette, requests: tuple[PartRequest, ...
 
 
 def sample_layout(
-    family: str, requests: tuple[PartRequest, ...], rng: np.random.Generator, texture_px: int = 512
+    family: str,
+    requests: tuple[PartRequest, ...],
+    rng: np.random.Generator,
+    texture_px: int = 512,
+    appearance: str = "textured",
 ) -> Layout:
     """Sample a room of the given family holding the requested fronts.
 
@@ -253,11 +259,12 @@ def sample_layout(
         requests: the fronts that will move, in part order.
         rng: random generator (the only source of randomness).
         texture_px: side of ordinary textures in pixels (walls and floor use twice that).
+        appearance: material style, one of ``room.APPEARANCES``.
 
     Returns:
         The scene (scene frame: z up, floor at z = 0, back wall at +y) and the target fronts.
     """
-    mats = MaterialBank(rng, texture_px)
+    mats = MaterialBank(rng, texture_px, appearance)
     palette = make_palette(mats)
     builders = {"kitchen": _kitchen, "bedroom": _bedroom, "tiny": _tiny}
     if family not in builders:
@@ -291,6 +298,7 @@ def sample_layout(
             "room_x_m": round(lx, 3),
             "room_y_m": round(ly, 3),
             "room_z_m": round(size[2], 3),
+            "appearance": appearance,
         },
     )
     return Layout(scene, tuple(row.targets[k] for k in range(len(requests))))

@@ -28,17 +28,34 @@ METALS = ((0.75, 0.75, 0.77, 1.0), (0.12, 0.12, 0.13, 1.0), (0.72, 0.58, 0.32, 1
 """Handle metals (RGBA: steel, black, brass)."""
 
 
+APPEARANCES = ("textured", "plain")
+"""Material styles of a scene: "textured" gives every surface a procedural texture; "plain"
+paints furniture, appliances, walls and ceiling in flat matte or glossy colours (floor, counter
+tops, pictures, rugs and stored objects keep their textures, as in a real kitchen)."""
+GLOSS_CHOICES = ((0.08, 0.05), (0.3, 0.3), (0.7, 0.8), (0.9, 0.95))
+"""(specular, shininess) of flat paint: matte, eggshell, gloss lacquer, high-gloss laminate."""
+
+
 class MaterialBank:
     """Collects the textures and materials of one scene while it is being built."""
 
-    def __init__(self, rng: np.random.Generator, texture_px: int) -> None:
+    def __init__(self, rng: np.random.Generator, texture_px: int, appearance: str = "textured") -> None:
+        if appearance not in APPEARANCES:
+            raise ValueError(f"unknown appearance {appearance!r}; expected one of {APPEARANCES}")
         self.rng = rng
         self.texture_px = texture_px
+        self.appearance = appearance
         self.textures: list[Texture] = []
         self.materials: list[Material] = []
 
     def textured(
-        self, kind: str, color: tuple[float, float, float], tile_m: float, big: bool = False, specular: float = 0.15
+        self,
+        kind: str,
+        color: tuple[float, float, float],
+        tile_m: float,
+        big: bool = False,
+        specular: float = 0.15,
+        paintable: bool = False,
     ) -> str:
         """Add a procedural texture of ``kind`` and a material using it; returns the material name.
 
@@ -48,11 +65,17 @@ class MaterialBank:
             tile_m: metres per texture repeat on surfaces.
             big: twice the usual resolution (floors and walls).
             specular: MuJoCo specular reflectance.
+            paintable: in a "plain" bank the surface is flat paint of ``color`` (matte or
+                glossy, drawn from the texture's own stream) instead of a texture.
         """
         name = f"{kind}_{len(self.textures)}"
         size = self.texture_px * (2 if big else 1)
-        # A child stream per texture: the layout does not depend on the texture resolution.
+        # A child stream per texture: the layout does not depend on the texture resolution,
+        # and a plain scene has the same layout as the textured scene of the same seed.
         texture_rng = np.random.default_rng(int(self.rng.integers(1 << 62)))
+        if paintable and self.appearance == "plain":
+            gloss, shine = GLOSS_CHOICES[int(texture_rng.integers(len(GLOSS_CHOICES)))]
+            return self.plain((*color, 1.0), gloss, shine)
         self.textures.append(Texture(name, make_texture(kind, texture_rng, size, color)))
         self.materials.append(Material(f"mat_{name}", (1.0, 1.0, 1.0, 1.0), name, tile_m, specular))
         return f"mat_{name}"
@@ -72,13 +95,13 @@ class MaterialBank:
 def make_palette(mats: MaterialBank) -> Palette:
     rng = mats.rng
     fronts = tuple(
-        mats.textured("wood", mats.pick(WOODS), float(rng.uniform(0.5, 0.8)))
+        mats.textured("wood", mats.pick(WOODS), float(rng.uniform(0.5, 0.8)), paintable=True)
         if rng.random() < 0.6
-        else mats.textured("plaster", mats.pick(PAINTS), float(rng.uniform(0.4, 0.7)), specular=0.3)
+        else mats.textured("plaster", mats.pick(PAINTS), float(rng.uniform(0.4, 0.7)), specular=0.3, paintable=True)
         for _ in range(2)
     )
-    carcass = mats.textured("wood", mats.pick(WOODS), 0.6) if rng.random() < 0.5 else fronts[0]
-    appliance = mats.textured("brushed", mats.pick(APPLIANCES, 0.02), 0.5, specular=0.4)
+    carcass = mats.textured("wood", mats.pick(WOODS), 0.6, paintable=True) if rng.random() < 0.5 else fronts[0]
+    appliance = mats.textured("brushed", mats.pick(APPLIANCES, 0.02), 0.5, specular=0.4, paintable=True)
     objects = tuple(
         mats.textured(
             ("wallpaper", "speckle", "tiles")[k % 3], vec3(rng.uniform(0.15, 0.95, 3)), float(rng.uniform(0.1, 0.2))
@@ -87,11 +110,11 @@ def make_palette(mats: MaterialBank) -> Palette:
     )
     return Palette(
         carcass=carcass,
-        interior=mats.textured("plaster", mats.pick(PAINTS), 0.4),
+        interior=mats.textured("plaster", mats.pick(PAINTS), 0.4, paintable=True),
         fronts=fronts,
         handles=tuple(mats.plain(METALS[k]) for k in rng.permutation(len(METALS))[:2]),
         appliance=appliance,
-        appliance_inside=mats.textured("plaster", (0.8, 0.82, 0.84), 0.3),
+        appliance_inside=mats.textured("plaster", (0.8, 0.82, 0.84), 0.3, paintable=True),
         glass=mats.plain((0.05, 0.06, 0.07, 1.0), 0.8, 0.8),
         objects=objects,
     )
@@ -108,9 +131,13 @@ def room_geoms(mats: MaterialBank, size: tuple[float, float, float]) -> tuple[Ge
         big=True,
     )
     walls = mats.textured(
-        "wallpaper" if rng.random() < 0.5 else "plaster", mats.pick(PAINTS), float(rng.uniform(1.5, 2.5)), big=True
+        "wallpaper" if rng.random() < 0.5 else "plaster",
+        mats.pick(PAINTS),
+        float(rng.uniform(1.5, 2.5)),
+        big=True,
+        paintable=True,
     )
-    ceiling = mats.textured("plaster", (0.92, 0.92, 0.9), 2.0)
+    ceiling = mats.textured("plaster", (0.92, 0.92, 0.9), 2.0, paintable=True)
     skirting = mats.plain(vec3(rng.uniform(0.3, 0.9, 3)) + (1.0,), 0.2, 0.2)
     x0, x1, y0, y1 = -lx / 2, lx / 2, -ly / 2, ly / 2
     geoms = [
@@ -198,7 +225,9 @@ def ceiling_lights(
 
 
 __all__ = [
+    "APPEARANCES",
     "APPLIANCES",
+    "GLOSS_CHOICES",
     "METALS",
     "PAINTS",
     "WALL",

@@ -47,8 +47,9 @@ LOGGER = logging.getLogger(__name__)
 
 FOCAL_AT_480_PX = 525.0
 """Kinect-like focal length at 480 rows, pixels; scaled with the image height."""
-GENERATOR_VERSION = 1
-"""Bumped whenever the same spec would produce different files."""
+GENERATOR_VERSION = 2
+"""Bumped whenever the same spec would produce different files (2: bench families and
+appearances; the spec in gt.json names its family)."""
 
 
 @dataclass(frozen=True)
@@ -268,7 +269,7 @@ def plan_sequence(spec: SequenceSpec, texture_px: int | None = None) -> Sequence
     scene_rng, motion_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(spec.seed).spawn(2))
     if texture_px is None:
         texture_px = 512 if min(spec.width, spec.height) >= 240 else 128
-    layout = sample_layout(spec.scene, spec.parts, scene_rng, texture_px)
+    layout = sample_layout(spec.scene, spec.parts, scene_rng, texture_px, spec.appearance)
     names = tuple(f"part_{k}" for k in range(len(spec.parts)))
     joint_names = {front.joint: name for front, name in zip(layout.targets, names)}
     scene = dataclasses.replace(layout.scene, bodies=map_bodies(layout.scene.bodies, joint_names))

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from funrec.synth.room import APPEARANCES
 from funrec.synth.scene import PART_KINDS
 
 SCENE_FAMILIES: dict[str, tuple[str, ...]] = {
@@ -94,6 +95,11 @@ class SequenceSpec:
     """Write masks/hand/ into the capture (ground-truth hand masks are always written)."""
     noise: bool = True
     """Apply the Kinect-like depth and RGB noise; False writes exact (mm-quantised) depth."""
+    family: str = "textured"
+    """Bench family the sequence belongs to (``funrec bench`` reports one row per family)."""
+    appearance: str = "textured"
+    """Material style: "textured" (every surface textured) or "plain" (flat matte or glossy
+    paint on furniture, appliances and walls); see ``room.APPEARANCES``."""
 
     def __post_init__(self) -> None:
         if not self.name or "/" in self.name or self.name.startswith("."):
@@ -115,6 +121,10 @@ class SequenceSpec:
         unused = set(range(len(self.parts))) - {i.part for i in self.interactions}
         if unused:
             raise ValueError(f"{self.name}: parts {sorted(unused)} are never interacted with")
+        if self.appearance not in APPEARANCES:
+            raise ValueError(f"{self.name}: unknown appearance {self.appearance!r}; expected one of {APPEARANCES}")
+        if not self.family or not self.family.replace("_", "").isalnum():
+            raise ValueError(f"{self.name}: family must be a plain word, got {self.family!r}")
         if self.num_frames < 8 or self.width < 16 or self.height < 16 or self.fps <= 0:
             raise ValueError(f"{self.name}: need >= 8 frames, >= 16x16 pixels and fps > 0")
 

@@ -24,8 +24,10 @@ def _single(
     frames: int,
     hand_masks: bool,
     targets: tuple[float, ...] = (0.9,),
+    **family: str,
 ) -> SequenceSpec:
-    return SequenceSpec(name, seed, scene, (part,), (Interaction(0, targets),), frames, hand_masks=hand_masks)
+    """A sequence with one interaction on one part; ``family`` sets the family and appearance fields."""
+    return SequenceSpec(name, seed, scene, (part,), (Interaction(0, targets),), frames, hand_masks=hand_masks, **family)
 
 
 def bench_suite() -> tuple[SequenceSpec, ...]:
@@ -84,6 +86,33 @@ def bench_suite() -> tuple[SequenceSpec, ...]:
     )
 
 
+def plain_suite() -> tuple[SequenceSpec, ...]:
+    """The "plain" family: untextured painted (matte to high-gloss) furniture, appliances and
+    walls, as in most real kitchens; 14 sequences, 7 of them without hand masks (the capture
+    has no masks/hand/ folder)."""
+    plain = {"family": "plain", "appearance": "plain"}
+    return (
+        _single("plain_rev_cabinet_left_00", 6001, "kitchen", PartRequest("door", "left"), 130, True, **plain),
+        _single("plain_rev_cabinet_right_00", 6002, "kitchen", PartRequest("door", "right"), 140, False, **plain),
+        _single("plain_rev_double_door_00", 6003, "kitchen", PartRequest("double_door", "left"), 140, True, **plain),
+        _single("plain_rev_wall_cabinet_00", 6004, "kitchen", PartRequest("wall_door", "right"), 140, False, **plain),
+        _single(
+            "plain_rev_wall_cabinet_01", 6005, "kitchen", PartRequest("wall_double_door", "left"), 140, True, **plain
+        ),
+        _single("plain_rev_fridge_00", 6006, "kitchen", PartRequest("fridge_door", "left"), 160, False, **plain),
+        _single("plain_rev_microwave_00", 6007, "kitchen", PartRequest("microwave_door"), 130, True, **plain),
+        _single("plain_rev_oven_00", 6008, "kitchen", PartRequest("oven_door"), 150, False, **plain),
+        _single("plain_rev_dishwasher_00", 6009, "kitchen", PartRequest("dishwasher_door"), 150, True, **plain),
+        _single("plain_pri_drawer_00", 6010, "kitchen", PartRequest("drawer", level="top"), 120, False, **plain),
+        _single("plain_pri_drawer_01", 6011, "bedroom", PartRequest("drawer", level="middle"), 130, True, **plain),
+        _single("plain_pri_wardrobe_00", 6012, "bedroom", PartRequest("sliding_door", "left"), 150, False, **plain),
+        _single(
+            "plain_pri_drawer_02", 6013, "kitchen", PartRequest("drawer", level="bottom"), 130, True, (0.5,), **plain
+        ),
+        SequenceSpec("plain_static_walk_00", 6014, "kitchen", (), (), 90, hand_masks=False, **plain),
+    )
+
+
 def smoke_suite() -> tuple[SequenceSpec, ...]:
     """Three short 320x240 sequences (revolute, prismatic, camera-only) for quick end-to-end checks."""
     return (
@@ -104,7 +133,11 @@ def tiny_spec(seed: int = 0) -> SequenceSpec:
     )
 
 
-SUITES: dict[str, Callable[[], tuple[SequenceSpec, ...]]] = {"bench": bench_suite, "smoke": smoke_suite}
+SUITES: dict[str, Callable[[], tuple[SequenceSpec, ...]]] = {
+    "bench": bench_suite,
+    "plain": plain_suite,
+    "smoke": smoke_suite,
+}
 """Suite names accepted by :func:`generate_suite`."""
 
 
@@ -118,7 +151,7 @@ def generate_suite(
 
     Args:
         out_dir: parent folder of the sequences.
-        suite: "bench" or "smoke".
+        suite: a name of :data:`SUITES` ("bench", "plain", "smoke", ...).
         only: names of the suite's sequences to generate (default: all).
         progress: called as progress(frames_done, frames_total) over the frames still to render.
 
@@ -154,4 +187,4 @@ def generate_suite(
     return [out_dir / s.name for s in specs]
 
 
-__all__ = ["SUITES", "bench_suite", "generate_suite", "smoke_suite", "tiny_spec"]
+__all__ = ["SUITES", "bench_suite", "generate_suite", "plain_suite", "smoke_suite", "tiny_spec"]
