@@ -424,3 +424,29 @@ def test_depth_holes_at_edges_and_out_of_range() -> None:
     edge_holes = (reading[20:80, 49:51] == 0).mean()
     elsewhere = (reading[20:80, 10:40] == 0).mean()
     assert edge_holes > 0.5 and elsewhere < 0.02
+
+
+def test_part_depth_self_test_passes_and_catches_depth_that_is_not_the_part(exact_capture: Path, tmp_path: Path) -> None:
+    import shutil
+
+    import cv2
+
+    from funrec.synth.selftest import PART_DEPTH_TOLERANCE_M, check_part_depth, part_depth_consistency
+
+    (result,) = check_part_depth(exact_capture)
+    # Nearest-pixel lookup on a 160x120 image: a few mm on slanted surfaces even with exact depth.
+    assert result.frame_pairs > 3 and result.median_m is not None and result.median_m < PART_DEPTH_TOLERANCE_M / 2
+    # Depth seen through a pane: every other frame reads 5 cm behind the part under its mask.
+    broken = shutil.copytree(exact_capture, tmp_path / "broken")
+    for frame in range(1, len(load_capture(broken)), 2):
+        mask_path = broken / "gt" / "masks" / "part_0" / f"{frame:06d}.png"
+        if not mask_path.is_file():
+            continue
+        depth_path = broken / "depth" / f"{frame:06d}.png"
+        depth = cv2.imread(str(depth_path), cv2.IMREAD_UNCHANGED)
+        depth[read_mask(mask_path) & (depth > 0)] += 50
+        cv2.imwrite(str(depth_path), depth)
+    (bad,) = part_depth_consistency(broken)
+    assert bad.median_m is not None and bad.median_m > PART_DEPTH_TOLERANCE_M
+    with pytest.raises(FunrecError, match="part_0: median"):
+        check_part_depth(broken)
