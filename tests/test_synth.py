@@ -450,3 +450,45 @@ def test_part_depth_self_test_passes_and_catches_depth_that_is_not_the_part(exac
     assert bad.median_m is not None and bad.median_m > PART_DEPTH_TOLERANCE_M
     with pytest.raises(FunrecError, match="part_0: median"):
         check_part_depth(broken)
+
+
+def test_bench_families_plain_has_12_and_half_without_hand_masks() -> None:
+    from funrec.synth.suite import FAMILY_SUITES, families_suite, plain_suite
+
+    plain = plain_suite()
+    assert len(plain) >= 12 and sum(not s.hand_masks for s in plain) * 2 >= len(plain)
+    assert all(s.appearance == "plain" and s.family == "plain" for s in plain)
+    names = [s.name for s in families_suite()]
+    assert len(set(names)) == len(names)
+    for suite, make in FAMILY_SUITES.items():
+        families = {s.family for s in make()}
+        assert families == {"textured" if suite == "bench" else suite}
+    person = {(s.arm, s.joint_speed) for s in FAMILY_SUITES["person"]()}
+    assert {"sleeve", "elbow"} <= {arm for arm, _ in person} and min(v for _, v in person) < 1 < max(v for _, v in person)
+    assert {"dim", "harsh", "window", "changing"} <= {s.lighting for s in FAMILY_SUITES["lighting"]()}
+    assert {"angled", "island"} <= {s.layout for s in FAMILY_SUITES["geometry"]()}
+    with pytest.raises(ValueError, match="unknown lighting"):
+        dataclasses.replace(tiny_spec(), lighting="disco")
+
+
+def test_clear_glass_is_in_the_colour_but_not_in_depth_or_labels() -> None:
+    import mujoco
+
+    from funrec.synth.render import OffscreenRenderer
+    from funrec.synth.scene import SEE_THROUGH_GROUP
+
+    xml = f"""<mujoco><visual><global offwidth="64" offheight="48"/></visual><worldbody>
+      <light pos="0 0 3" dir="0 0 -1"/>
+      <camera name="cam" pos="0 0 0" xyaxes="1 0 0 0 1 0" fovy="60"/>
+      <geom name="wall" type="box" size="2 2 0.01" pos="0 0 -2" rgba="0.8 0.2 0.2 1"/>
+      <geom name="pane" type="box" size="0.5 0.5 0.005" pos="0 0 -1" rgba="0.8 0.9 0.9 0.2"
+            group="{SEE_THROUGH_GROUP}"/>
+    </worldbody></mujoco>"""
+    model = mujoco.MjModel.from_xml_string(xml)
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    with OffscreenRenderer(model, 64, 48, "cam") as renderer:
+        view = renderer.render(data)
+    wall = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "wall")
+    assert view.geom_id[24, 32] == wall
+    assert view.depth_m[24, 32] == pytest.approx(1.99, abs=0.01)  # the wall's front face, not the pane

@@ -73,7 +73,8 @@ class BenchConfig:
     method: str = "funrec"
     """Method to run: "funrec" (reconstruct in a subprocess), "oracle" or "trivial" (funrec.bench.baselines)."""
     suite: str = "bench"
-    """Named suite of funrec.synth used to generate missing sequences ("bench" or "smoke")."""
+    """Named suite of funrec.synth used to generate missing sequences (a family such as "bench" or
+    "plain", "families" for all of them, or "smoke"; see funrec.synth.suite.SUITES)."""
     timeout_s: float = 1800.0
     """Wall-time limit per sequence, seconds; a run that exceeds it is killed and is a failure row."""
     only: tuple[str, ...] | None = None

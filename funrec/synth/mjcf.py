@@ -124,11 +124,15 @@ class _Writer:
             attrs.update({"type": geom.shape, "size": _fmt(geom.size)})
             if geom.shape in ("cylinder", "capsule"):
                 attrs["zaxis"] = _fmt(geom.zaxis)
+        if geom.group:
+            attrs["group"] = str(geom.group)
         attrs.update(extra or {})
         ET.SubElement(parent, "geom", attrs)
 
     def body(self, parent: ET.Element, body: Body) -> None:
         element = ET.SubElement(parent, "body", {"name": body.name, "pos": _fmt(body.pos)})
+        if body.yaw:
+            element.set("euler", _fmt([0.0, 0.0, body.yaw]))
         if body.joint is not None:
             joint = body.joint
             ET.SubElement(

@@ -17,6 +17,10 @@ from funrec.typed import UInt8Array
 Vec3 = tuple[float, float, float]
 """A 3-vector as a tuple of floats (hashable, so frozen dataclasses stay comparable)."""
 
+SEE_THROUGH_GROUP = 3
+"""Geom group of clear glass: drawn in the colour image, but left out of the depth and label
+pass, so depth and ground-truth masks show the surface behind the pane (as a structured-light
+or time-of-flight sensor reads through clear glass), never a label without its depth."""
 GEOM_SHAPES = ("box", "cylinder", "capsule", "sphere")
 """Geom shapes the MJCF writer understands; textured boxes become meshes with UV coordinates."""
 PART_KINDS = (
@@ -84,6 +88,8 @@ class Geom:
     """Name of a :class:`Material`."""
     zaxis: Vec3 = (0.0, 0.0, 1.0)
     """Axis of a cylinder or capsule in the body frame (boxes are always axis-aligned)."""
+    group: int = 0
+    """MuJoCo geom group; :data:`SEE_THROUGH_GROUP` marks glass that the depth sensor sees through."""
 
     def __post_init__(self) -> None:
         if self.shape not in GEOM_SHAPES:
@@ -137,7 +143,7 @@ class Body:
     name: str
     """Body name, unique in the scene."""
     pos: Vec3
-    """Origin in the parent frame, metres (bodies are never rotated relative to their parent)."""
+    """Origin in the parent frame, metres (rotated relative to the parent only by ``yaw``)."""
     geoms: tuple[Geom, ...] = ()
     """Geoms in this body's frame."""
     bodies: tuple[Body, ...] = ()
@@ -146,6 +152,9 @@ class Body:
     """Joint connecting the body to its parent; None welds it."""
     sites: tuple[tuple[str, Vec3], ...] = ()
     """Named points (name, position in the body frame), e.g. handle centres; not rendered."""
+    yaw: float = 0.0
+    """Rotation about the parent's z axis, radians (only a free-standing or angled furniture row
+    uses it; everything below it is axis-aligned in the row frame)."""
 
 
 @dataclass(frozen=True)
@@ -235,6 +244,7 @@ def map_bodies(bodies: tuple[Body, ...], joint_names: dict[str, str]) -> tuple[B
 
 __all__ = [
     "GEOM_SHAPES",
+    "SEE_THROUGH_GROUP",
     "JOINT_TYPE_OF_KIND",
     "PART_KINDS",
     "Body",
