@@ -492,3 +492,22 @@ def test_clear_glass_is_in_the_colour_but_not_in_depth_or_labels() -> None:
     wall = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "wall")
     assert view.geom_id[24, 32] == wall
     assert view.depth_m[24, 32] == pytest.approx(1.99, abs=0.01)  # the wall's front face, not the pane
+
+
+def test_metaworld_assets_become_human_scale_fronts_with_credit() -> None:
+    from funrec.synth.assets import ASSET_MODELS, METAWORLD_CREDIT, metaworld_root
+    from funrec.synth.suite import assets_suite
+
+    try:
+        metaworld_root()
+    except FunrecError as exc:
+        pytest.skip(f"metaworld not installed: {exc}")
+    kinds = {s.parts[0].kind for s in assets_suite()}
+    assert kinds == set(ASSET_MODELS)
+    for spec in assets_suite()[::2]:
+        plan = plan_sequence(dataclasses.replace(spec, width=160, height=120), texture_px=32)
+        (part,) = plan.parts
+        assert part.joint_type == JOINT_TYPE_OF_KIND[spec.parts[0].kind]
+        assert 0.3 < part.handle[2] < 1.8 and 0.3 < part.width < 1.5, (spec.name, part.handle, part.width)
+        assert plan.scene.description["third_party_assets"] == METAWORLD_CREDIT
+        assert any(path.endswith(".stl") for path in plan.assets)

@@ -7,11 +7,12 @@ furniture fronts face -y (towards the room).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from funrec.synth.appliances import drop_down_appliance, fridge, microwave
+from funrec.synth.assets import METAWORLD_CREDIT, asset_unit
 from funrec.synth.fronts import objects_on
 from funrec.synth.room import PAINTS, MaterialBank, ceiling_lights, make_palette, room_geoms, vary_lighting
 from funrec.synth.scene import Body, Front, Scene, box
@@ -59,6 +60,8 @@ class _Row:
     """Every articulable front in the row."""
     targets: dict[int, Front]
     """Request index -> chosen front."""
+    mesh_files: dict[str, bytes] = field(default_factory=dict)
+    """Third-party meshes the row's geoms use (path relative to scene.xml -> bytes)."""
 
 
 def _kitchen(mats: MaterialBank, palette: Palette, requests: tuple[PartRequest, ...], varied: bool = False) -> _Row:
@@ -241,6 +244,29 @@ def _bookshelf(mats: MaterialBank, palette: Palette) -> Unit:
     return Unit(Body("shelf", (0.0, 0.0, 0.0), tuple(geoms)), (), width, depth, height)
 
 
+def _assets(mats: MaterialBank, palette: Palette, requests: tuple[PartRequest, ...]) -> _Row:
+    """One Meta-World object at human scale on a plain stand (``assets.py``), beside an open
+    bookshelf, in random order."""
+    rng = mats.rng
+    if len(requests) != 1:
+        raise ValueError(f"an assets scene holds exactly one part, got {len(requests)} requests")
+    unit, meshes = asset_unit(requests[0].kind, mats, palette)
+    shelf = _bookshelf(mats, palette)
+    order = (unit, shelf) if rng.random() < 0.5 else (shelf, unit)
+    units, x = [], 0.0
+    for piece in order:
+        units.append(placed(piece, x + piece.width / 2, 0.0))
+        x += piece.width + float(rng.uniform(0.3, 0.6))
+    return _Row(
+        Body("row", (0.0, 0.0, 0.0), (), tuple(u.body for u in units)),
+        x,
+        max(u.depth for u in units),
+        unit.fronts,
+        {0: unit.fronts[0]},
+        meshes,
+    )
+
+
 def _tiny(mats: MaterialBank, palette: Palette, requests: tuple[PartRequest, ...]) -> _Row:
     """One small cabinet with a single hinged door."""
     rng = mats.rng
@@ -305,7 +331,7 @@ def sample_layout(
     """
     mats = MaterialBank(rng, texture_px, appearance)
     palette = make_palette(mats)
-    builders = {"kitchen": _kitchen, "bedroom": _bedroom, "tiny": _tiny}
+    builders = {"kitchen": _kitchen, "bedroom": _bedroom, "tiny": _tiny, "assets": _assets}
     if family not in builders:
         raise ValueError(f"unknown scene family {family!r}; expected one of {tuple(builders)}")
     row = (
@@ -344,6 +370,7 @@ def sample_layout(
         fronts=row.fronts,
         walk_area=walk,
         ambient=ambient,
+        mesh_files=tuple(sorted(row.mesh_files.items())),
         description={
             "family": family,
             "room_x_m": round(lx, 3),
@@ -352,6 +379,7 @@ def sample_layout(
             "appearance": appearance,
             "lighting": lighting,
             "layout": arrangement,
+            **({"third_party_assets": METAWORLD_CREDIT} if row.mesh_files else {}),
             "row_yaw_deg": round(float(np.degrees(yaw)), 2),
             "row_off_wall_m": round(float(ly / 2 - y_wall), 3) if arrangement == "island" else 0.0,
         },

@@ -36,7 +36,7 @@ from funrec.synth.render import (
     fovy_for_focal,
     intrinsics_from_fovy,
 )
-from funrec.synth.scene import Body, Front, Material, Scene, map_bodies
+from funrec.synth.scene import Body, Front, Geom, Material, Scene, map_bodies
 from funrec.synth.room import light_schedule
 from funrec.synth.sensor import SensorNoise, noisy_depth, noisy_rgb
 from funrec.synth.spec import SequenceSpec
@@ -95,7 +95,9 @@ def _part_geometry(
         joint = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
         body = _find_body(scene.bodies, front.body)
         body_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, front.body)
-        panel = body.geoms[0]  # every front builder puts its panel first
+        panel = body.geoms[0]  # every front builder puts its panel first (or describes it)
+        if front.panel is not None:
+            panel = Geom("box", front.panel[1], front.panel[0], panel.material)
         R_world_body = data.xmat[body_id].reshape(3, 3)
         p_world_body = data.xpos[body_id]
         handle = data.site_xpos[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, front.handle_site)].copy()
@@ -279,7 +281,7 @@ def plan_sequence(spec: SequenceSpec, texture_px: int | None = None) -> Sequence
     scene = dataclasses.replace(layout.scene, bodies=map_bodies(layout.scene.bodies, joint_names))
     if spec.arm == "sleeve":
         scene = with_sleeve(scene, np.random.default_rng(np.random.SeedSequence(spec.seed).spawn(4)[3]), texture_px)
-    assets = {f"{TEXTURE_DIR}/{t.name}.png": _png(t.image) for t in scene.textures}
+    assets = {f"{TEXTURE_DIR}/{t.name}.png": _png(t.image) for t in scene.textures} | dict(scene.mesh_files)
     scene_xml = scene_to_mjcf(scene, model_name=spec.name)
     model = mujoco.MjModel.from_xml_string(scene_xml, assets)
     data = mujoco.MjData(model)
@@ -315,6 +317,7 @@ def generate_sequence(spec: SequenceSpec, out_dir: Path, progress: Callable[[int
         gt = temp / "gt"
         (gt / TEXTURE_DIR).mkdir(parents=True)
         for path, data in plan.assets.items():
+            (gt / path).parent.mkdir(parents=True, exist_ok=True)
             (gt / path).write_bytes(data)
         (gt / "scene.xml").write_text(plan.scene_xml)
         model = mujoco.MjModel.from_xml_path(str(gt / "scene.xml"))  # the written file must load on its own

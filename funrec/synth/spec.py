@@ -21,6 +21,7 @@ SCENE_FAMILIES: dict[str, tuple[str, ...]] = {
         "dishwasher_door",
     ),
     "bedroom": ("sliding_door", "drawer"),
+    "assets": ("mw_drawer", "mw_door", "mw_window", "mw_window_horiz"),
     "tiny": ("door",),
 }
 """Scene families and the part kinds each can hold."""

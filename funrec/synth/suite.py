@@ -195,6 +195,23 @@ def person_suite() -> tuple[SequenceSpec, ...]:
     )
 
 
+def assets_suite() -> tuple[SequenceSpec, ...]:
+    """The "assets" family: Meta-World's drawer, safe door and vertical and horizontal sliding
+    windows (MIT License; needs an installed metaworld, see ``assets.py``) at human scale in
+    plain paint in a plain room; 8 sequences, half without hand masks."""
+    mw = {"family": "assets", "appearance": "plain"}
+    return (
+        _single("mw_drawer_00", 11001, "assets", PartRequest("mw_drawer"), 120, True, **mw),
+        _single("mw_drawer_01", 11002, "assets", PartRequest("mw_drawer"), 120, False, (0.6,), **mw),
+        _single("mw_door_00", 11003, "assets", PartRequest("mw_door"), 140, False, **mw),
+        _single("mw_door_01", 11004, "assets", PartRequest("mw_door"), 140, True, **mw),
+        _single("mw_window_00", 11005, "assets", PartRequest("mw_window"), 120, True, **mw),
+        _single("mw_window_01", 11006, "assets", PartRequest("mw_window"), 120, False, **mw),
+        _single("mw_window_horiz_00", 11007, "assets", PartRequest("mw_window_horiz"), 120, False, **mw),
+        _single("mw_window_horiz_01", 11008, "assets", PartRequest("mw_window_horiz"), 120, True, **mw),
+    )
+
+
 def smoke_suite() -> tuple[SequenceSpec, ...]:
     """Three short 320x240 sequences (revolute, prismatic, camera-only) for quick end-to-end checks."""
     return (
@@ -222,6 +239,7 @@ FAMILY_SUITES: dict[str, Callable[[], tuple[SequenceSpec, ...]]] = {
     "lighting": lighting_suite,
     "geometry": geometry_suite,
     "person": person_suite,
+    "assets": assets_suite,
 }
 """The bench families, each a suite of its own ("bench" is the textured family)."""
 
@@ -288,6 +306,7 @@ def generate_suite(
 __all__ = [
     "FAMILY_SUITES",
     "SUITES",
+    "assets_suite",
     "bench_suite",
     "dark_suite",
     "families_suite",
