@@ -7,9 +7,9 @@ finger tips. ``forearm`` has its origin at the wrist and z pointing to the elbow
 
 from __future__ import annotations
 
-import numpy as np
-
 from dataclasses import replace
+
+import numpy as np
 
 from funrec.synth.scene import Geom, Material, Scene, Texture, rod, vec3
 from funrec.synth.textures import make_texture

@@ -14,10 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
-from funrec.capture import load_capture, read_mask
 from funrec.errors import FunrecError
+from funrec.formats.capture import load_capture, read_mask
+from funrec.formats.ground_truth import read_ground_truth
 from funrec.geometry.transforms import invert_transform, transform_points
-from funrec.ground_truth import read_ground_truth
 from funrec.typed import FloatArray
 
 PART_DEPTH_TOLERANCE_M = 0.015

@@ -36,8 +36,8 @@ from funrec.synth.render import (
     fovy_for_focal,
     intrinsics_from_fovy,
 )
-from funrec.synth.scene import Body, Front, Geom, Material, Scene, map_bodies
 from funrec.synth.room import light_schedule
+from funrec.synth.scene import Body, Front, Geom, Material, Scene, map_bodies
 from funrec.synth.sensor import SensorNoise, noisy_depth, noisy_rgb
 from funrec.synth.spec import SequenceSpec
 
