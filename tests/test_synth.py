@@ -511,3 +511,34 @@ def test_metaworld_assets_become_human_scale_fronts_with_credit() -> None:
         assert 0.3 < part.handle[2] < 1.8 and 0.3 < part.width < 1.5, (spec.name, part.handle, part.width)
         assert plan.scene.description["third_party_assets"] == METAWORLD_CREDIT
         assert any(path.endswith(".stl") for path in plan.assets)
+
+
+def test_changing_light_switches_one_light_and_other_set_ups_keep_theirs() -> None:
+    from funrec.synth.room import light_schedule
+
+    rng = np.random.default_rng(4)
+    assert np.array_equal(light_schedule("dim", 3, 50, rng), np.ones((50, 3)))
+    scale = light_schedule("changing", 3, 100, np.random.default_rng(5))
+    jumps = np.abs(np.diff(scale, axis=0)).max(axis=0)
+    assert sorted(jumps > 0.2) == [False, False, True]  # one light switched within 3 frames
+    switched = int(np.argmax(jumps))
+    assert {round(scale[0, switched], 2), round(scale[-1, switched], 2)} == {0.12, 1.0}
+
+
+@pytest.mark.parametrize("arrangement", ["angled", "island"])
+def test_turned_and_free_rows_keep_the_walk_area_in_front_of_every_front(arrangement: str) -> None:
+    for seed in range(3):
+        spec = SequenceSpec(
+            f"geo_{seed}", 900 + seed, "kitchen", (PartRequest("door"),), (Interaction(0, (0.9,)),), 120,
+            layout=arrangement, appearance="plain",
+        )
+        plan = plan_sequence(spec, texture_px=32)
+        y_max = plan.scene.walk_area[3]
+        assert plan.scene.description["layout"] == arrangement
+        # Every handle (on the fronts) lies beyond the walk area's far edge, and the camera stays in it.
+        handles = np.array([p.handle for p in plan.parts])
+        assert np.all(handles[:, 1] > y_max)
+        assert np.all(plan.motion.T_world_camera[:, 1, 3] <= y_max + 0.05)
+        if arrangement == "angled":
+            assert 8.0 <= abs(plan.scene.description["row_yaw_deg"]) <= 25.0
+            assert abs(plan.parts[0].normal[0]) > np.sin(np.radians(7.0))  # not axis-aligned
