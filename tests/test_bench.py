@@ -230,6 +230,8 @@ def test_report_headline_is_the_worst_family_and_every_family_has_a_row():
     assert [f for f, _ in bench_report.family_rows(rows)] == ["textured", "plain"]
     family, summary = bench_report.worst_family(rows)
     assert family == "plain" and summary.fail_pct == pytest.approx(50.0)
+    crashed = (*rows, replace(_row([failed], status="failed"), name="d", family="dark"))
+    assert bench_report.worst_family(crashed)[0] == "dark"  # a failed run ranks below a failed part
     method = bench_report.MethodReport("funrec", ("funrec",), rows, summarize(rows))
     slow = tuple(replace(r, method="open3d", wall_s=8.0) for r in rows[:2])
     baseline = bench_report.MethodReport("open3d", ("o3d",), slow, summarize(slow))

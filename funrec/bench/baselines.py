@@ -199,11 +199,12 @@ def write_open3d_twin(capture_dir: str | Path, out_dir: str | Path) -> Path:
         attr_dtypes=(o3c.float32, o3c.float32, o3c.float32),
         attr_channels=(1, 1, 3),
         voxel_size=OPEN3D_VOXEL_M,
-        block_resolution=16,
-        block_count=50000,
+        block_resolution=8,
+        block_count=40000,  # 20 MB per 1,000 blocks of 8^3 voxels; the hash map grows when full
         device=o3c.Device("CPU:0"),
     )
-    criteria = [o3d.t.pipelines.odometry.OdometryConvergenceCriteria(n) for n in (6, 3, 1)]
+    # Open3D's default iterations per pyramid level (coarse to fine), as rgbd_odometry_multi_scale uses them.
+    criteria = [o3d.t.pipelines.odometry.OdometryConvergenceCriteria(n) for n in (10, 5, 3)]
     T_world_camera = np.empty((len(capture), 4, 4))
     previous = None
     motion = np.eye(4)  # T_previous_current of the last successful step

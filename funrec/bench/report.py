@@ -252,9 +252,10 @@ def family_rows(results: tuple[SequenceResult, ...]) -> list[tuple[str, BenchSum
     return [(family, summarize([r for r in results if r.family == family])) for family in families]
 
 
-def _badness(s: BenchSummary) -> tuple[float, float, float, float, float]:
+def _badness(s: BenchSummary) -> tuple[float, float, float, float, float, float]:
     invented = s.invented_parts / s.sequences if s.sequences else 0.0
     return (
+        s.failed_sequences / s.sequences if s.sequences else 0.0,
         s.fail_pct or 0.0,
         invented,
         -(100.0 if s.add_auc is None else s.add_auc),
@@ -264,8 +265,9 @@ def _badness(s: BenchSummary) -> tuple[float, float, float, float, float]:
 
 
 WORST_FAMILY_RULE = (
-    "The headline row is the worst family: the highest Fail (%), then the most invented parts per "
-    "sequence, then the lowest ADD, then the lowest mIoU, then the largest ATE."
+    "The headline row is the worst family: the largest share of sequences whose run failed, then the "
+    "highest Fail (%), then the most invented parts per sequence, then the lowest ADD, then the lowest "
+    "mIoU, then the largest ATE."
 )
 """How :func:`worst_family` ranks families (written into report.md)."""
 
