@@ -365,9 +365,10 @@ def _add_synth(sub: Any, selected: bool) -> None:
     p.add_argument("-o", "--output", type=Path, required=True, help="output folder (one sub-folder per sequence)")
     p.add_argument(
         "--suite",
-        choices=("bench", "smoke"),
+        choices=("bench", "plain", "dark", "lighting", "geometry", "person", "assets", "families", "smoke"),
         default="smoke",
-        help="named suite: 'bench' (the benchmark, 24+ sequences) or 'smoke' (a few short ones; default)",
+        help="named suite: a bench family ('bench' = the textured family, 'plain', 'dark', 'lighting', "
+        "'geometry', 'person', 'assets' = Meta-World objects), 'families' (all of them) or 'smoke' (a few short ones; default)",
     )
     p.add_argument("--only", nargs="+", metavar="NAME", help="generate only these sequences of the suite")
     p.add_argument("--tiny", action="store_true", help="instead of a suite, one tiny low-resolution sequence")

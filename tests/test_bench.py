@@ -31,7 +31,7 @@ def suite(tmp_path_factory) -> Path:
 
 
 def _config(**changes) -> BenchConfig:
-    return BenchConfig(**{"generate_missing": False, "jobs": 2, "timeout_s": 120.0, **changes})
+    return BenchConfig(**{"generate_missing": False, "jobs": 2, "timeout_s": 120.0, "speed_baseline": "none", **changes})
 
 
 def _load_strict_json(path: Path) -> dict:
@@ -215,3 +215,52 @@ def test_bench_through_ray_scores_like_local_processes(suite, tmp_path):
         assert [p.axis_error_deg for p in a.evaluation.parts] == [p.axis_error_deg for p in b.evaluation.parts]
     assert local.main.summary.adds_auc == on_ray.main.summary.adds_auc
     assert (tmp_path / "ray" / "twins" / "trivial" / "seq_b" / "articulation.json").is_file()
+
+
+def test_report_headline_is_the_worst_family_and_every_family_has_a_row():
+    from dataclasses import replace
+
+    good = PartEvaluation("d", "revolute", "p", None, 0.0, 5, 1.0, 0.01, 1.0, 95.0, 90.0, 90.0)
+    failed = PartEvaluation("e", "revolute", failure="no part found")
+    rows = (
+        replace(_row([good]), name="a", family="textured"),
+        replace(_row([good]), name="b", family="plain"),
+        replace(_row([failed]), name="c", family="plain"),
+    )
+    assert [f for f, _ in bench_report.family_rows(rows)] == ["textured", "plain"]
+    family, summary = bench_report.worst_family(rows)
+    assert family == "plain" and summary.fail_pct == pytest.approx(50.0)
+    crashed = (*rows, replace(_row([failed], status="failed"), name="d", family="dark"))
+    assert bench_report.worst_family(crashed)[0] == "dark"  # a failed run ranks below a failed part
+    method = bench_report.MethodReport("funrec", ("funrec",), rows, summarize(rows))
+    slow = tuple(replace(r, method="open3d", wall_s=8.0) for r in rows[:2])
+    baseline = bench_report.MethodReport("open3d", ("o3d",), slow, summarize(slow))
+    report = bench_report.BenchReport(Path("s"), Path("o"), (method,), "abc", "m", "d", "c", _config(), (baseline,))
+    text = format_report(report)
+    assert "worst family (plain)" in text and "funrec: textured" in text and "open3d (2 sequences)" in text
+    (speed,) = bench_report.speed_comparisons(report)
+    assert speed.sequences == ("a", "b") and speed.ratio == pytest.approx(4.0)  # 2 s against 8 s per 10 frames
+    assert "ratio 4.00x" in text
+    assert bench_report.report_to_json(report)["worst_family"] == "plain"
+
+
+def test_sequence_family_reads_the_generator_spec(tmp_path):
+    (tmp_path / "gt").mkdir()
+    assert bench.sequence_family(tmp_path) == "textured"  # no gt.json: the old textured bench
+    (tmp_path / "gt" / "gt.json").write_text(json.dumps({"generator": {"spec": {"family": "plain"}}}))
+    assert bench.sequence_family(tmp_path) == "plain"
+
+
+@pytest.mark.slow  # renders a tiny sequence and runs Open3D in a subprocess: ~30 s on a busy machine
+def test_open3d_baseline_runs_beside_funrec_on_the_chosen_sequences(tmp_path):
+    synth = pytest.importorskip("funrec.synth")
+    synth.generate_sequence(synth.tiny_spec(3), tmp_path / "suite")  # the fixture suite has no depth
+    config = _config(method="funrec", reconstruct_args=("--definitely-not-a-flag",), speed_baseline="open3d", jobs=1)
+    report = run_bench(tmp_path / "suite", tmp_path / "out", config)
+    assert [m.label for m in report.methods] == ["funrec"]
+    assert [b.label for b in report.baselines] == ["open3d"]
+    (row,) = report.baselines[0].sequences
+    assert row.status == "ok", row.reason
+    assert row.evaluation.camera_ate_cm is not None
+    assert row.family == "textured" and row.evaluation.camera_ate_cm < 5.0
+    assert (tmp_path / "out" / "twins" / "open3d" / "tiny_03" / "meshes" / "static.ply").is_file()

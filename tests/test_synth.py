@@ -424,3 +424,121 @@ def test_depth_holes_at_edges_and_out_of_range() -> None:
     edge_holes = (reading[20:80, 49:51] == 0).mean()
     elsewhere = (reading[20:80, 10:40] == 0).mean()
     assert edge_holes > 0.5 and elsewhere < 0.02
+
+
+def test_part_depth_self_test_passes_and_catches_depth_that_is_not_the_part(exact_capture: Path, tmp_path: Path) -> None:
+    import shutil
+
+    import cv2
+
+    from funrec.synth.selftest import PART_DEPTH_TOLERANCE_M, check_part_depth, part_depth_consistency
+
+    (result,) = check_part_depth(exact_capture)
+    # Nearest-pixel lookup on a 160x120 image: a few mm on slanted surfaces even with exact depth.
+    assert result.frame_pairs > 3 and result.median_m is not None and result.median_m < PART_DEPTH_TOLERANCE_M / 2
+    # Depth seen through a pane: every other frame reads 5 cm behind the part under its mask.
+    broken = shutil.copytree(exact_capture, tmp_path / "broken")
+    for frame in range(1, len(load_capture(broken)), 2):
+        mask_path = broken / "gt" / "masks" / "part_0" / f"{frame:06d}.png"
+        if not mask_path.is_file():
+            continue
+        depth_path = broken / "depth" / f"{frame:06d}.png"
+        depth = cv2.imread(str(depth_path), cv2.IMREAD_UNCHANGED)
+        depth[read_mask(mask_path) & (depth > 0)] += 50
+        cv2.imwrite(str(depth_path), depth)
+    (bad,) = part_depth_consistency(broken)
+    assert bad.median_m is not None and bad.median_m > PART_DEPTH_TOLERANCE_M
+    with pytest.raises(FunrecError, match="part_0: median"):
+        check_part_depth(broken)
+
+
+def test_bench_families_plain_has_12_and_half_without_hand_masks() -> None:
+    from funrec.synth.suite import FAMILY_SUITES, families_suite, plain_suite
+
+    plain = plain_suite()
+    assert len(plain) >= 12 and sum(not s.hand_masks for s in plain) * 2 >= len(plain)
+    assert all(s.appearance == "plain" and s.family == "plain" for s in plain)
+    names = [s.name for s in families_suite()]
+    assert len(set(names)) == len(names)
+    for suite, make in FAMILY_SUITES.items():
+        families = {s.family for s in make()}
+        assert families == {"textured" if suite == "bench" else suite}
+    person = {(s.arm, s.joint_speed) for s in FAMILY_SUITES["person"]()}
+    assert {"sleeve", "elbow"} <= {arm for arm, _ in person} and min(v for _, v in person) < 1 < max(v for _, v in person)
+    assert {"dim", "harsh", "window", "changing"} <= {s.lighting for s in FAMILY_SUITES["lighting"]()}
+    assert {"angled", "island"} <= {s.layout for s in FAMILY_SUITES["geometry"]()}
+    with pytest.raises(ValueError, match="unknown lighting"):
+        dataclasses.replace(tiny_spec(), lighting="disco")
+
+
+def test_clear_glass_is_in_the_colour_but_not_in_depth_or_labels() -> None:
+    import mujoco
+
+    from funrec.synth.render import OffscreenRenderer
+    from funrec.synth.scene import SEE_THROUGH_GROUP
+
+    xml = f"""<mujoco><visual><global offwidth="64" offheight="48"/></visual><worldbody>
+      <light pos="0 0 3" dir="0 0 -1"/>
+      <camera name="cam" pos="0 0 0" xyaxes="1 0 0 0 1 0" fovy="60"/>
+      <geom name="wall" type="box" size="2 2 0.01" pos="0 0 -2" rgba="0.8 0.2 0.2 1"/>
+      <geom name="pane" type="box" size="0.5 0.5 0.005" pos="0 0 -1" rgba="0.8 0.9 0.9 0.2"
+            group="{SEE_THROUGH_GROUP}"/>
+    </worldbody></mujoco>"""
+    model = mujoco.MjModel.from_xml_string(xml)
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    with OffscreenRenderer(model, 64, 48, "cam") as renderer:
+        view = renderer.render(data)
+    wall = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "wall")
+    assert view.geom_id[24, 32] == wall
+    assert view.depth_m[24, 32] == pytest.approx(1.99, abs=0.01)  # the wall's front face, not the pane
+
+
+def test_metaworld_assets_become_human_scale_fronts_with_credit() -> None:
+    from funrec.synth.assets import ASSET_MODELS, METAWORLD_CREDIT, metaworld_root
+    from funrec.synth.suite import assets_suite
+
+    try:
+        metaworld_root()
+    except FunrecError as exc:
+        pytest.skip(f"metaworld not installed: {exc}")
+    kinds = {s.parts[0].kind for s in assets_suite()}
+    assert kinds == set(ASSET_MODELS)
+    for spec in assets_suite()[::2]:
+        plan = plan_sequence(dataclasses.replace(spec, width=160, height=120), texture_px=32)
+        (part,) = plan.parts
+        assert part.joint_type == JOINT_TYPE_OF_KIND[spec.parts[0].kind]
+        assert 0.3 < part.handle[2] < 1.8 and 0.3 < part.width < 1.5, (spec.name, part.handle, part.width)
+        assert plan.scene.description["third_party_assets"] == METAWORLD_CREDIT
+        assert any(path.endswith(".stl") for path in plan.assets)
+
+
+def test_changing_light_switches_one_light_and_other_set_ups_keep_theirs() -> None:
+    from funrec.synth.room import light_schedule
+
+    rng = np.random.default_rng(4)
+    assert np.array_equal(light_schedule("dim", 3, 50, rng), np.ones((50, 3)))
+    scale = light_schedule("changing", 3, 100, np.random.default_rng(5))
+    jumps = np.abs(np.diff(scale, axis=0)).max(axis=0)
+    assert sorted(jumps > 0.2) == [False, False, True]  # one light switched within 3 frames
+    switched = int(np.argmax(jumps))
+    assert {round(scale[0, switched], 2), round(scale[-1, switched], 2)} == {0.12, 1.0}
+
+
+@pytest.mark.parametrize("arrangement", ["angled", "island"])
+def test_turned_and_free_rows_keep_the_walk_area_in_front_of_every_front(arrangement: str) -> None:
+    for seed in range(3):
+        spec = SequenceSpec(
+            f"geo_{seed}", 900 + seed, "kitchen", (PartRequest("door"),), (Interaction(0, (0.9,)),), 120,
+            layout=arrangement, appearance="plain",
+        )
+        plan = plan_sequence(spec, texture_px=32)
+        y_max = plan.scene.walk_area[3]
+        assert plan.scene.description["layout"] == arrangement
+        # Every handle (on the fronts) lies beyond the walk area's far edge, and the camera stays in it.
+        handles = np.array([p.handle for p in plan.parts])
+        assert np.all(handles[:, 1] > y_max)
+        assert np.all(plan.motion.T_world_camera[:, 1, 3] <= y_max + 0.05)
+        if arrangement == "angled":
+            assert 8.0 <= abs(plan.scene.description["row_yaw_deg"]) <= 25.0
+            assert abs(plan.parts[0].normal[0]) > np.sin(np.radians(7.0))  # not axis-aligned

@@ -1,7 +1,9 @@
-"""Two reference "methods" that write twin folders (FORMATS.md section 2) without reconstructing:
-an oracle built from the ground truth, and a naive baseline that uses none.
+"""Reference "methods" that write twin folders (FORMATS.md section 2): an oracle built from the
+ground truth, a naive baseline that uses none, and Open3D's own RGB-D odometry + TSDF
+integration (a static reconstruction without parts, timed beside FunREC in ``funrec bench``).
 
-They exercise :mod:`funrec.bench.evaluate` and :mod:`funrec.bench.run` at both ends of the score range.
+The first two exercise :mod:`funrec.bench.evaluate` and :mod:`funrec.bench.run` at both ends of
+the score range; the Open3D one is the speed (and camera/static-geometry) reference.
 """
 
 from __future__ import annotations
@@ -161,4 +163,93 @@ def write_trivial_twin(capture_dir: str | Path, out_dir: str | Path) -> Path:
     return _write_atomically(Path(out_dir), fill)
 
 
-__all__ = ["write_oracle_twin", "write_trivial_twin"]
+OPEN3D_VOXEL_M = 0.01
+"""Voxel size of the Open3D baseline's TSDF volume, metres (the default of FunREC's fusion)."""
+OPEN3D_DEPTH_MAX_M = 4.0
+"""Farthest depth the Open3D baseline uses for odometry and integration, metres."""
+
+
+def write_open3d_twin(capture_dir: str | Path, out_dir: str | Path) -> Path:
+    """Open3D's RGB-D odometry + TSDF integration as a baseline twin: no parts, camera poses
+    and a static mesh.
+
+    Frame-to-frame multi-scale hybrid (photometric + geometric) RGB-D odometry
+    (``open3d.t.pipelines.odometry.rgbd_odometry_multi_scale``, the tracker of Open3D's
+    reconstruction system), chained from camera 0, and every frame integrated into a
+    ``VoxelBlockGrid`` TSDF, whose marching-cubes mesh is the static mesh. A frame whose
+    odometry fails keeps the previous frame's motion (constant velocity). Capture hand masks,
+    when present, are cut out of the depth, as FunREC does.
+
+    Args:
+        capture_dir: a capture folder (FORMATS.md section 1).
+        out_dir: the twin folder to write; replaced if it already holds a twin.
+
+    Returns:
+        ``out_dir``.
+    """
+    import open3d as o3d
+    import open3d.core as o3c
+
+    capture = load_capture(capture_dir, check_headers=False)
+    intr = capture.intrinsics
+    K = np.array([[intr.fx, 0.0, intr.cx], [0.0, intr.fy, intr.cy], [0.0, 0.0, 1.0]])
+    K_t = o3c.Tensor(K)
+    grid = o3d.t.geometry.VoxelBlockGrid(
+        attr_names=("tsdf", "weight", "color"),
+        attr_dtypes=(o3c.float32, o3c.float32, o3c.float32),
+        attr_channels=(1, 1, 3),
+        voxel_size=OPEN3D_VOXEL_M,
+        block_resolution=8,
+        block_count=40000,  # 20 MB per 1,000 blocks of 8^3 voxels; the hash map grows when full
+        device=o3c.Device("CPU:0"),
+    )
+    # Open3D's default iterations per pyramid level (coarse to fine), as rgbd_odometry_multi_scale uses them.
+    criteria = [o3d.t.pipelines.odometry.OdometryConvergenceCriteria(n) for n in (10, 5, 3)]
+    T_world_camera = np.empty((len(capture), 4, 4))
+    previous = None
+    motion = np.eye(4)  # T_previous_current of the last successful step
+    for frame, rgb, depth_m in capture.frames():
+        hand = capture.mask("hand", frame)
+        depth = np.where(hand, 0.0, depth_m) if hand is not None else depth_m
+        image = o3d.t.geometry.RGBDImage(
+            o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(rgb, dtype=np.float32) / 255.0)),
+            o3d.t.geometry.Image(o3c.Tensor(depth.astype(np.float32))),
+        )
+        if previous is None:
+            T_world_camera[frame] = np.eye(4)
+        else:
+            try:
+                result = o3d.t.pipelines.odometry.rgbd_odometry_multi_scale(
+                    image, previous, K_t, o3c.Tensor(motion), 1.0, OPEN3D_DEPTH_MAX_M, criteria,
+                    o3d.t.pipelines.odometry.Method.Hybrid,
+                )
+                T_previous_current = result.transformation.numpy()  # source (current) -> target (previous)
+                if result.fitness > 0 and np.all(np.isfinite(T_previous_current)):
+                    motion = T_previous_current
+            except RuntimeError as exc:  # too few valid correspondences
+                LOGGER.debug("open3d odometry failed at frame %d: %s", frame, exc)
+            T_world_camera[frame] = T_world_camera[frame - 1] @ motion
+        previous = image
+        if np.any((depth > 0) & (depth < OPEN3D_DEPTH_MAX_M)):
+            T_camera_world = o3c.Tensor(invert_transform(T_world_camera[frame]))
+            blocks = grid.compute_unique_block_coordinates(image.depth, K_t, T_camera_world, 1.0, OPEN3D_DEPTH_MAX_M)
+            grid.integrate(blocks, image.depth, image.color, K_t, T_camera_world, 1.0, OPEN3D_DEPTH_MAX_M)
+    if grid.hashmap().size() == 0:
+        raise FunrecError(f"{capture_dir}: no depth reading within {OPEN3D_DEPTH_MAX_M} m; Open3D integrated nothing")
+    mesh = grid.extract_triangle_mesh(weight_threshold=2.0).to_legacy()
+    if len(mesh.triangles) == 0:
+        raise FunrecError(f"{capture_dir}: Open3D TSDF integration produced no surface")
+
+    def fill(tmp: Path) -> None:
+        (tmp / "meshes").mkdir()
+        trimesh.Trimesh(np.asarray(mesh.vertices), np.asarray(mesh.triangles), process=False).export(
+            str(tmp / "meshes" / "static.ply")
+        )
+        write_camera_poses(tmp / "camera_poses.txt", T_world_camera)
+        write_articulation(tmp / "articulation.json", TwinArticulation(len(capture), (), "meshes/static.ply"))
+
+    LOGGER.info("writing Open3D odometry + TSDF twin of %s to %s", capture_dir, out_dir)
+    return _write_atomically(Path(out_dir), fill)
+
+
+__all__ = ["OPEN3D_DEPTH_MAX_M", "OPEN3D_VOXEL_M", "write_open3d_twin", "write_oracle_twin", "write_trivial_twin"]

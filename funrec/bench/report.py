@@ -45,6 +45,8 @@ class SequenceResult:
     """CPU time (user + system) of the run subprocess, seconds; None if unknown (timeout)."""
     fragments: FragmentScore | None = None
     """The twin's fragments.json scored against the true interaction intervals; None without one."""
+    family: str = "textured"
+    """Bench family of the sequence (``generator.spec.family`` in its gt.json)."""
 
     @property
     def frames_per_s(self) -> float | None:
@@ -161,6 +163,8 @@ class BenchReport:
     """The command line that started the bench."""
     config: BenchConfig
     """The settings it ran with."""
+    baselines: tuple[MethodReport, ...] = ()
+    """Reference methods timed in the same run (the speed baseline), each on its own sequences."""
 
     @property
     def main(self) -> MethodReport:
@@ -242,6 +246,101 @@ AGGREGATION_NOTE = (
 )
 
 
+def family_rows(results: tuple[SequenceResult, ...]) -> list[tuple[str, BenchSummary]]:
+    """One summary per family, in order of first appearance."""
+    families = list(dict.fromkeys(r.family for r in results))
+    return [(family, summarize([r for r in results if r.family == family])) for family in families]
+
+
+def _badness(s: BenchSummary) -> tuple[float, float, float, float, float, float]:
+    invented = s.invented_parts / s.sequences if s.sequences else 0.0
+    return (
+        s.failed_sequences / s.sequences if s.sequences else 0.0,
+        s.fail_pct or 0.0,
+        invented,
+        -(100.0 if s.add_auc is None else s.add_auc),
+        -(100.0 if s.miou is None else s.miou),
+        s.camera_ate_cm or 0.0,
+    )
+
+
+WORST_FAMILY_RULE = (
+    "The headline row is the worst family: the largest share of sequences whose run failed, then the "
+    "highest Fail (%), then the most invented parts per sequence, then the lowest ADD, then the lowest "
+    "mIoU, then the largest ATE."
+)
+"""How :func:`worst_family` ranks families (written into report.md)."""
+
+
+def worst_family(results: tuple[SequenceResult, ...]) -> tuple[str, BenchSummary]:
+    """The family that scores worst by :data:`WORST_FAMILY_RULE`."""
+    return max(family_rows(results), key=lambda row: _badness(row[1]))
+
+
+@dataclass(frozen=True)
+class SpeedComparison:
+    """The main method's throughput against a speed baseline on the sequences both completed."""
+
+    baseline: str
+    """Baseline label."""
+    sequences: tuple[str, ...]
+    """Sequences both completed."""
+    frames_per_s: float | None
+    """Main method: total frames over total wall time on those sequences."""
+    baseline_frames_per_s: float | None
+    """Baseline: the same."""
+
+    @property
+    def ratio(self) -> float | None:
+        """Main method frames/s over baseline frames/s."""
+        if not self.frames_per_s or not self.baseline_frames_per_s:
+            return None
+        return self.frames_per_s / self.baseline_frames_per_s
+
+
+def speed_comparisons(report: BenchReport) -> list[SpeedComparison]:
+    """Throughput of the main method against each speed baseline, on the common completed sequences."""
+    out = []
+    main = {r.name: r for r in report.main.sequences if r.frames_per_s is not None}
+    for baseline in report.baselines:
+        pairs = [(main[r.name], r) for r in baseline.sequences if r.frames_per_s is not None and r.name in main]
+        names = tuple(m.name for m, _ in pairs)
+        out.append(
+            SpeedComparison(
+                baseline.label,
+                names,
+                summarize([m for m, _ in pairs]).frames_per_s if pairs else None,
+                summarize([b for _, b in pairs]).frames_per_s if pairs else None,
+            )
+        )
+    return out
+
+
+def _method_rows(report: BenchReport) -> list[tuple[str, list[str]]]:
+    """Main table rows: the worst family (headline), every family, all sequences, then the baselines."""
+    main = report.main
+    label = main.label
+    worst, worst_summary = worst_family(main.sequences)
+    families = family_rows(main.sequences)
+    rows = [(f"**{label}: worst family ({worst})**", _cells(worst_summary))]
+    if len(families) > 1:
+        rows += [(f"{label}: {family}", _cells(s)) for family, s in families]
+    rows.append((f"{label}: all {main.summary.sequences} sequences", _cells(main.summary)))
+    rows += [(f"{b.label} ({b.summary.sequences} sequences)", _cells(b.summary)) for b in report.baselines]
+    return rows
+
+
+def _speed_lines(report: BenchReport) -> list[str]:
+    lines = []
+    for c in speed_comparisons(report):
+        ratio = "-" if c.ratio is None else f"{c.ratio:.2f}x"
+        lines.append(
+            f"Speed: {report.main.label} {_f(c.frames_per_s, 2)} frames/s vs {c.baseline} {_f(c.baseline_frames_per_s, 2)} "
+            f"frames/s on the same {len(c.sequences)} sequences, run one after the other in this bench: ratio {ratio}"
+        )
+    return lines
+
+
 def _f(value: float | None, digits: int) -> str:
     return "-" if value is None else f"{value:.{digits}f}"
 
@@ -306,7 +405,8 @@ def ablation_rows(report: BenchReport) -> tuple[str, list[tuple[str, BenchSummar
 
 def format_report(report: BenchReport) -> str:
     """The main table (and the ablation table, if any) as Markdown for the terminal."""
-    lines = _table("Method", [(m.label, _cells(m.summary)) for m in report.methods[:1]])
+    lines = _table("Method", _method_rows(report))
+    lines += _speed_lines(report)
     s = report.main.summary
     lines.append(
         f"sequences: {s.sequences} ({s.failed_sequences} failed); true parts: {s.parts} "
@@ -336,9 +436,13 @@ def report_to_markdown(report: BenchReport) -> str:
         "",
         AGGREGATION_NOTE,
         "",
+        WORST_FAMILY_RULE,
+        "",
         "## Results",
         "",
-        *_table("Method", [(report.main.label, _cells(report.main.summary))]),
+        *_table("Method", _method_rows(report)),
+        "",
+        *_speed_lines(report),
         "",
         "## Functional twin (affordances, hand masks, fragments)",
         "",
@@ -347,9 +451,9 @@ def report_to_markdown(report: BenchReport) -> str:
     if report.ablations:
         heading, rows = ablation_rows(report)
         lines += ["", f"## Ablations ({heading})", "", *_table("Variant", [(label, _cells(s)) for label, s in rows])]
-    for method in report.methods:
+    for method in (*report.methods, *report.baselines):
         lines += ["", f"## Per sequence: {method.label}", "", f"Command: `{shlex.join(method.command)}`", ""]
-        lines += _table("Sequence", [(r.name, _cells(summarize([r]))) for r in method.sequences])
+        lines += _table("Sequence", [(f"{r.name} ({r.family})", _cells(summarize([r]))) for r in method.sequences])
         lines += ["", *_twin_table("Sequence", [(r.name, summarize([r])) for r in method.sequences])]
         failures = [r for r in method.sequences if r.status != "ok"]
         part_failures = [(r.name, p) for r in method.sequences if r.status == "ok" for p in r.evaluation.parts if p.failed]
@@ -373,7 +477,7 @@ def _jsonable(value: Any) -> Any:
 def report_to_json(report: BenchReport) -> dict[str, Any]:
     """report.json: the header, the config, and per method its summary and every sequence."""
     methods = []
-    for method in report.methods:
+    for method in (*report.methods, *report.baselines):
         rows = []
         for r in method.sequences:
             row = {f.name: getattr(r, f.name) for f in dataclasses.fields(r) if f.name not in ("evaluation", "fragments")}
@@ -384,7 +488,13 @@ def report_to_json(report: BenchReport) -> dict[str, Any]:
             row["frames_per_cpu_s"] = r.frames_per_cpu_s
             row["evaluation"] = evaluation_to_json(r.evaluation)
             rows.append(_jsonable(row))
-        methods.append({"label": method.label, "command": list(method.command), "summary": dataclasses.asdict(method.summary), "sequences": rows})
+        methods.append({
+            "label": method.label, "command": list(method.command), "summary": dataclasses.asdict(method.summary),
+            "baseline": method in report.baselines,
+            "families": {family: dataclasses.asdict(s) for family, s in family_rows(method.sequences)},
+            "sequences": rows,
+        })
+    worst, _ = worst_family(report.main.sequences)
     return {
         "format": "funrec-bench/1",
         "git_commit": report.git_commit,
@@ -395,12 +505,21 @@ def report_to_json(report: BenchReport) -> dict[str, Any]:
         "out_dir": str(report.out_dir),
         "config": _jsonable(dataclasses.asdict(report.config)),
         "aggregation": AGGREGATION_NOTE,
+        "worst_family": worst,
+        "worst_family_rule": WORST_FAMILY_RULE,
+        "speed": [
+            {"baseline": c.baseline, "sequences": list(c.sequences), "frames_per_s": c.frames_per_s,
+             "baseline_frames_per_s": c.baseline_frames_per_s, "ratio": c.ratio}
+            for c in speed_comparisons(report)
+        ],
         "methods": methods,
     }
 
 
 __all__ = [
     "AGGREGATION_NOTE",
+    "WORST_FAMILY_RULE",
+    "SpeedComparison",
     "TABLE_COLUMNS",
     "TWIN_COLUMNS",
     "BenchReport",
@@ -408,6 +527,9 @@ __all__ = [
     "MethodReport",
     "SequenceResult",
     "ablation_rows",
+    "family_rows",
+    "speed_comparisons",
+    "worst_family",
     "format_report",
     "report_to_json",
     "report_to_markdown",

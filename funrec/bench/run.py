@@ -41,8 +41,13 @@ from funrec.formats.staged_folder import refuse_output_over_input
 
 LOGGER = logging.getLogger(__name__)
 
-METHODS = ("funrec", "oracle", "trivial")
-"""Methods :func:`run_bench` can run: the reconstruction, and the two reference baselines."""
+METHODS = ("funrec", "oracle", "trivial", "open3d")
+"""Methods :func:`run_bench` can run: the reconstruction, and the reference baselines of
+:mod:`funrec.bench.baselines` (ground-truth oracle, trivial twin, Open3D odometry + TSDF)."""
+SPEED_BASELINES = ("open3d", "none")
+"""Values of :attr:`BenchConfig.speed_baseline`."""
+DEFAULT_FAMILY = "textured"
+"""Family of a sequence whose gt.json names none (generator version 1: the textured bench)."""
 _BASELINE_SNIPPET = "import sys; from funrec.bench.baselines import {function}; {function}(sys.argv[1], sys.argv[2])"
 _PROJECT_ROOT = Path(__file__).resolve().parents[1]
 
@@ -80,7 +85,8 @@ class BenchConfig:
     method: str = "funrec"
     """Method to run: "funrec" (reconstruct in a subprocess), "oracle" or "trivial" (funrec.bench.baselines)."""
     suite: str = "bench"
-    """Named suite of funrec.synth used to generate missing sequences ("bench" or "smoke")."""
+    """Named suite of funrec.synth used to generate missing sequences (a family such as "bench" or
+    "plain", "families" for all of them, or "smoke"; see funrec.synth.suite.SUITES)."""
     timeout_s: float = 1800.0
     """Wall-time limit per sequence, seconds; a run that exceeds it is killed and is a failure row."""
     only: tuple[str, ...] | None = None
@@ -112,13 +118,21 @@ class BenchConfig:
     """Resident memory Ray reserves for each run with --ray, MiB, as in funrec batch (0: none)."""
     evaluation: EvalConfig = EvalConfig()
     """Evaluation settings."""
+    speed_baseline: str = "open3d"
+    """Reference method timed in the same run on the same captures, one at a time like the main
+    method: "open3d" (Open3D RGB-D odometry + TSDF integration, funrec.bench.baselines) or "none".
+    The report gives the main method's throughput over the baseline's on the sequences both ran.
+    Runs only when the method is "funrec"."""
+    speed_baseline_sequences: str | None = None
+    """Comma-separated sequence names the speed baseline runs on (None: every sequence). Open3D
+    runs ~1.7 frames/s at 640x480 on 2 cores, so a subset keeps the bench short."""
 
 
 
 def _method_command(method: str, extra: tuple[str, ...], capture: str, twin: str) -> list[str]:
     if method == "funrec":
         return [sys.executable, "-m", "funrec", "reconstruct", capture, "-o", twin, *extra]
-    function = {"oracle": "write_oracle_twin", "trivial": "write_trivial_twin"}[method]
+    function = {"oracle": "write_oracle_twin", "trivial": "write_trivial_twin", "open3d": "write_open3d_twin"}[method]
     return [sys.executable, "-c", _BASELINE_SNIPPET.format(function=function), capture, twin]
 
 
@@ -135,7 +149,10 @@ def _run_sequence(
     def failure(status: str, reason: str, frames: int = 0, child: LimitedRun | None = None) -> SequenceResult:
         LOGGER.warning("%s on %s: %s", label, capture.name, reason)
         wall, rss, cpu = (child.seconds, child.peak_mb, child.cpu_s) if child else (None, None, None)
-        return SequenceResult(capture.name, label, status, reason, frames, wall, rss, failed_evaluation(twin, gt_dir, reason), twin, log_path, cpu)
+        return SequenceResult(
+            capture.name, label, status, reason, frames, wall, rss, failed_evaluation(twin, gt_dir, reason), twin, log_path,
+            cpu, family=sequence_family(capture),
+        )
 
     try:
         frame_count = len(load_capture(capture, check_headers=False))
@@ -161,8 +178,19 @@ def _run_sequence(
     status, reason = ("ok", None) if evaluation.ok else ("failed", evaluation.failure)
     return SequenceResult(
         capture.name, label, status, reason, frame_count, child.seconds, child.peak_mb, evaluation, twin, log_path, child.cpu_s,
-        _fragment_score(twin, gt_dir),
+        _fragment_score(twin, gt_dir), family=sequence_family(capture),
     )
+
+
+def sequence_family(capture: Path) -> str:
+    """The bench family of a generated capture: ``generator.spec.family`` of its gt/gt.json
+    (:data:`DEFAULT_FAMILY` when the file predates families or cannot be read)."""
+    try:
+        spec = json.loads((Path(capture) / "gt" / "gt.json").read_text()).get("generator", {}).get("spec", {})
+    except (OSError, ValueError, AttributeError):
+        return DEFAULT_FAMILY
+    family = spec.get("family") if isinstance(spec, dict) else None
+    return family if isinstance(family, str) and family else DEFAULT_FAMILY
 
 
 def _fragment_score(twin: Path, gt_dir: Path) -> FragmentScore | None:
@@ -239,6 +267,8 @@ def _ablations(config: BenchConfig) -> tuple[tuple[str, tuple[str, ...]], ...]:
         raise FunrecError(f"unknown bench method {config.method!r}; expected one of {list(METHODS)}")
     if config.ablation_set not in ABLATION_SETS:
         raise FunrecError(f"unknown ablation set {config.ablation_set!r}; expected one of {list(ABLATION_SETS)}")
+    if config.speed_baseline not in SPEED_BASELINES:
+        raise FunrecError(f"unknown speed baseline {config.speed_baseline!r}; expected one of {list(SPEED_BASELINES)}")
     if config.ablation_set != "none" and config.method != "funrec":
         raise FunrecError(f"ablation set {config.ablation_set!r} ablates funrec; the method is {config.method!r}")
     if config.jobs < 1 or not config.timeout_s > 0 or min(config.memory_limit_mb, config.task_memory_mb) < 0:
@@ -255,16 +285,14 @@ def _ablations(config: BenchConfig) -> tuple[tuple[str, tuple[str, ...]], ...]:
     return ablations
 
 
-def _ablation_captures(captures: list[Path], config: BenchConfig) -> list[Path]:
-    """The captures the ablations run on: ``ablation_sequences`` (in suite order) or all."""
-    if config.ablation_sequences is None:
+def _subset(captures: list[Path], selection: str | None, what: str) -> list[Path]:
+    """The captures named in the comma-separated ``selection`` (in suite order), or all when None."""
+    if selection is None:
         return captures
-    names = [n.strip() for n in config.ablation_sequences.split(",") if n.strip()]
+    names = [n.strip() for n in selection.split(",") if n.strip()]
     unknown = sorted(set(names) - {c.name for c in captures})
     if unknown or not names:
-        raise FunrecError(
-            f"ablation_sequences {unknown or names} are not among the sequences run: {[c.name for c in captures]}"
-        )
+        raise FunrecError(f"{what} {unknown or names} are not among the sequences run: {[c.name for c in captures]}")
     return [c for c in captures if c.name in names]
 
 
@@ -297,10 +325,15 @@ def run_bench(
     refuse_output_over_input(out_dir, suite_dir)
     date = datetime.now(timezone.utc).isoformat(timespec="seconds")
     captures = _prepare_suite(suite_dir, config)
-    ablation_captures = _ablation_captures(captures, config)
+    ablation_captures = _subset(captures, config.ablation_sequences, "ablation_sequences")
+    baseline_captures = _subset(captures, config.speed_baseline_sequences, "speed_baseline_sequences")
     out_dir.mkdir(parents=True, exist_ok=True)
     runs = [(config.method, config.method, config.reconstruct_args, captures)]
     runs += [(label, "funrec", config.reconstruct_args + extra, ablation_captures) for label, extra in ablations]
+    # The speed reference is for the reconstruction; the oracle and trivial twins need none.
+    baseline = config.speed_baseline if config.method == "funrec" and config.speed_baseline != "none" else None
+    if baseline is not None:
+        runs.append((baseline, baseline, (), baseline_captures))
     tasks = [(label, method, extra, capture) for label, method, extra, run_captures in runs for capture in run_captures]
     jobs = [(label, method, extra, capture, out_dir, config) for label, method, extra, capture in tasks]
     finished = run_jobs(_run_sequence, jobs, config.jobs, config.ray, config.task_memory_mb, progress)
@@ -310,9 +343,11 @@ def run_bench(
         rows = tuple(results[(label, c.name)] for c in run_captures)
         command = tuple(_method_command(method, extra, "CAPTURE", "TWIN"))
         methods.append(MethodReport(label, ("python", *command[1:]), rows, summarize(rows)))
+    baselines = tuple(methods[-1:]) if baseline is not None else ()
+    methods = methods[: len(methods) - len(baselines)]
     report = BenchReport(
         suite_dir, out_dir, tuple(methods), _git_commit(), _machine(), date,
-        command_line if command_line is not None else shlex.join(sys.argv), config,
+        command_line if command_line is not None else shlex.join(sys.argv), config, baselines,
     )
     (out_dir / "report.json").write_text(json.dumps(report_to_json(report), indent=2) + "\n")
     (out_dir / "report.md").write_text(report_to_markdown(report))
@@ -321,7 +356,9 @@ def run_bench(
 
 __all__ = [
     "ABLATION_SETS",
+    "DEFAULT_FAMILY",
     "METHODS",
+    "SPEED_BASELINES",
     "STANDARD_ABLATIONS",
     "BenchConfig",
     "BenchReport",
@@ -332,5 +369,6 @@ __all__ = [
     "report_to_json",
     "report_to_markdown",
     "run_bench",
+    "sequence_family",
     "summarize",
 ]

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from funrec.synth.scene import Body, Front, Geom, Joint, box, rod, shift, vec3
+from funrec.synth.scene import SEE_THROUGH_GROUP, Body, Front, Geom, Joint, box, rod, shift, vec3
 
 FRONT_GAP = 0.001
 """Clearance between a closed front and the carcass, metres (keeps contacts out of the scene)."""
@@ -33,6 +33,8 @@ class FrontStyle:
     """One of :data:`HANDLE_SHAPES`."""
     inset: str = ""
     """Material of a dark inset (appliance window or recessed grip); empty for none."""
+    pane: str = ""
+    """Material of a clear glass pane filling a hinged door inside a frame; empty for a solid panel."""
 
 
 def handle_geoms(
@@ -124,7 +126,10 @@ def hinged_door(
     bar = min(0.6, max(0.1, (z1 - z0) * 0.3)) if kind == "fridge_door" else 0.14
     handle, centre = handle_geoms(style.handle_shape, (handle_x, y_out, handle_z), grip, bar, style.handle, style.inset)
     panel = box((x0, y_out, z0), (x1, -FRONT_GAP, z1), style.panel)
-    geoms = shift((panel, *extra, *handle), -pivot)
+    frame: tuple[Geom, ...] = ()
+    if style.pane:
+        panel, frame = _glazed(x0, x1, z0, z1, y_out, style)
+    geoms = shift((panel, *frame, *extra, *handle), -pivot)
     joint = Joint(f"{name}_joint", "hinge", axis, (0.0, float(max_angle)))
     body = Body(name, vec3(pivot), geoms, joint=joint, sites=((f"{name}_handle", vec3(centre - pivot)),))
     facts = {
@@ -135,6 +140,27 @@ def hinged_door(
     }
     front = Front(kind, name, joint.name, f"{name}_handle", vec3(grip), {**facts, **(details or {})})
     return body, front
+
+
+GLAZING_FRAME_M = 0.05
+"""Width of the solid frame around a glass pane, metres."""
+
+
+def _glazed(
+    x0: float, x1: float, z0: float, z1: float, y_out: float, style: FrontStyle
+) -> tuple[Geom, tuple[Geom, ...]]:
+    """A glass pane spanning the door (first, so it stands for the panel's extent) and the four
+    frame bars around it; the pane is set 4 mm into the frame so no face of it is coplanar with one."""
+    y_in, f = -FRONT_GAP, GLAZING_FRAME_M
+    pane = box((x0, y_out + 0.004, z0), (x1, y_in - 0.004, z1), style.pane)
+    pane = Geom(pane.shape, pane.size, pane.pos, pane.material, group=SEE_THROUGH_GROUP)
+    frame = (
+        box((x0, y_out, z0), (x0 + f, y_in, z1), style.panel),
+        box((x1 - f, y_out, z0), (x1, y_in, z1), style.panel),
+        box((x0 + f, y_out, z0), (x1 - f, y_in, z0 + f), style.panel),
+        box((x0 + f, y_out, z1 - f), (x1 - f, y_in, z1), style.panel),
+    )
+    return pane, frame
 
 
 def drop_down_door(
@@ -310,6 +336,7 @@ def objects_on(
 
 __all__ = [
     "FRONT_GAP",
+    "GLAZING_FRAME_M",
     "HANDLE_SHAPES",
     "FrontStyle",
     "drawer",

@@ -7,9 +7,12 @@ finger tips. ``forearm`` has its origin at the wrist and z pointing to the elbow
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
-from funrec.synth.scene import Geom, rod, vec3
+from funrec.synth.scene import Geom, Material, Scene, Texture, rod, vec3
+from funrec.synth.textures import make_texture
 
 SKIN_TONES = ((0.87, 0.69, 0.56), (0.76, 0.57, 0.42), (0.55, 0.38, 0.26), (0.94, 0.78, 0.66))
 """RGB skin tones the proxy is drawn in."""
@@ -20,6 +23,10 @@ FOREARM_LENGTH = 0.27
 UPPER_ARM_LENGTH = 0.6
 """Length of the (straight) upper-arm capsule continuing the forearm, metres; it passes the
 shoulder and leaves the view at the image border like a real arm."""
+ELBOW_BEND_DEG = 70.0
+"""Angle between forearm and upper arm of the "elbow" arm, degrees (0: straight)."""
+SLEEVE_MATERIAL = "sleeve_mat"
+"""Material name of the "sleeve" arm's textured sleeve."""
 FINGER_REACH = 0.027
 """How far behind the grasp point (along grasp z) the curled fingers reach, metres; handles
 must stand at least this far off their front or the grasp point is moved back."""
@@ -49,15 +56,50 @@ def hand_geoms(material: str) -> tuple[Geom, ...]:
     return tuple(geoms)
 
 
-def forearm_geoms(material: str) -> tuple[Geom, ...]:
-    """The arm in the forearm frame: capsules from the wrist (origin) along +z, thickening
-    towards the elbow, then the upper arm."""
+def forearm_geoms(material: str, arm: str = "proxy", sleeve: str = "") -> tuple[Geom, ...]:
+    """The arm in the forearm frame (origin at the wrist, +z towards the shoulder, +y down for
+    a level arm).
+
+    Args:
+        material: skin material.
+        arm: "proxy": capsules from the wrist along +z, thickening towards the elbow, then the
+            straight upper arm; "elbow": the same capsules bent :data:`ELBOW_BEND_DEG` down at
+            the elbow (the elbow hangs below the wrist-shoulder line, the upper arm rises back);
+            "sleeve": a rigid arm of boxes in the textured ``sleeve`` material, skin only at
+            the wrist.
+        sleeve: material of the sleeve (arm "sleeve").
+    """
     half = FOREARM_LENGTH / 2.0
+    if arm == "sleeve":
+        wrist = rod((0.0, 0.0, 0.0), (0.0, 0.0, 0.04), 0.027, material, "capsule")
+        fore = Geom("box", (0.04, 0.04, half), (0.0, 0.0, half + 0.03), sleeve)
+        upper = Geom("box", (0.05, 0.05, UPPER_ARM_LENGTH / 2.0), (0.0, 0.0, FOREARM_LENGTH + UPPER_ARM_LENGTH / 2.0), sleeve)
+        return (wrist, fore, upper)
+    if arm == "elbow":
+        down = np.radians(ELBOW_BEND_DEG) / 2.0
+        elbow = FOREARM_LENGTH * np.array([0.0, np.sin(down), np.cos(down)])
+        shoulder = elbow + UPPER_ARM_LENGTH * np.array([0.0, -np.sin(down), np.cos(down)])
+        return (
+            rod((0.0, 0.0, 0.0), elbow / 2.0, 0.028, material, "capsule"),
+            rod(elbow / 2.0, elbow, 0.035, material, "capsule"),
+            rod(elbow, shoulder, 0.04, material, "capsule"),
+        )
+    if arm != "proxy":
+        raise ValueError(f"unknown arm {arm!r}; expected 'proxy', 'elbow' or 'sleeve'")
     return (
         rod((0.0, 0.0, 0.0), (0.0, 0.0, half), 0.028, material, "capsule"),
         rod((0.0, 0.0, half), (0.0, 0.0, FOREARM_LENGTH), 0.035, material, "capsule"),
         rod((0.0, 0.0, FOREARM_LENGTH), (0.0, 0.0, FOREARM_LENGTH + UPPER_ARM_LENGTH), 0.04, material, "capsule"),
     )
+
+
+def with_sleeve(scene: Scene, rng: np.random.Generator, texture_px: int) -> Scene:
+    """The scene with the sleeve's patterned texture and material added (arm "sleeve")."""
+    color = vec3(rng.uniform(0.15, 0.85, 3))
+    kind = ("wallpaper", "tiles", "speckle")[int(rng.integers(3))]
+    texture = Texture("sleeve", make_texture(kind, rng, max(64, texture_px // 2), color))
+    material = Material(SLEEVE_MATERIAL, (1.0, 1.0, 1.0, 1.0), "sleeve", 0.12, 0.1, 0.1)
+    return replace(scene, textures=(*scene.textures, texture), materials=(*scene.materials, material))
 
 
 def skin_color(rng: np.random.Generator) -> tuple[float, float, float, float]:
@@ -67,7 +109,9 @@ def skin_color(rng: np.random.Generator) -> tuple[float, float, float, float]:
 
 
 __all__ = [
+    "ELBOW_BEND_DEG",
     "FINGER_REACH",
+    "SLEEVE_MATERIAL",
     "FOREARM_LENGTH",
     "SKIN_TONES",
     "UPPER_ARM_LENGTH",
@@ -75,4 +119,5 @@ __all__ = [
     "forearm_geoms",
     "hand_geoms",
     "skin_color",
+    "with_sleeve",
 ]

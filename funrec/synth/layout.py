@@ -7,13 +7,14 @@ furniture fronts face -y (towards the room).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from funrec.synth.appliances import drop_down_appliance, fridge, microwave
+from funrec.synth.assets import METAWORLD_CREDIT, asset_unit
 from funrec.synth.fronts import objects_on
-from funrec.synth.room import PAINTS, MaterialBank, ceiling_lights, make_palette, room_geoms
+from funrec.synth.room import PAINTS, MaterialBank, ceiling_lights, make_palette, room_geoms, vary_lighting
 from funrec.synth.scene import Body, Front, Scene, box
 from funrec.synth.spec import PartRequest
 from funrec.synth.units import Palette, Unit, base_cabinet, carcass, chest_of_drawers, placed, wall_cabinet, wardrobe
@@ -59,11 +60,15 @@ class _Row:
     """Every articulable front in the row."""
     targets: dict[int, Front]
     """Request index -> chosen front."""
+    mesh_files: dict[str, bytes] = field(default_factory=dict)
+    """Third-party meshes the row's geoms use (path relative to scene.xml -> bytes)."""
 
 
-def _kitchen(mats: MaterialBank, palette: Palette, requests: tuple[PartRequest, ...]) -> _Row:
+def _kitchen(mats: MaterialBank, palette: Palette, requests: tuple[PartRequest, ...], varied: bool = False) -> _Row:
     """Base units (one per request that needs one, plus fillers), a fridge at one end, wall
-    cabinets over some base units, a countertop with a tiled backsplash and a microwave."""
+    cabinets over some base units, a countertop with a tiled backsplash and a microwave.
+    ``varied`` hangs the wall cabinets so their handles are at 1.4-1.9 m (instead of about
+    1.5-1.6 m) and stands small appliances (boxes and cylinders) on the counter."""
     rng = mats.rng
     depth, height = float(rng.uniform(0.55, 0.6)), float(rng.uniform(0.84, 0.9))
     fillers = ("door_left", "door_right", "double", "drawers", "drawers", "drawer_door")
@@ -146,18 +151,20 @@ def _kitchen(mats: MaterialBank, palette: Palette, requests: tuple[PartRequest, 
     units = [placed(base[n], lefts[i] + base[n].width / 2, 0.0) for i, n in enumerate(order)]
     run = float(lefts[-1] - offset)
     targets: dict[int, Front] = {}
-    wall_z = float(rng.uniform(1.45, 1.55))
+    wall_z = float(rng.uniform(1.32, 1.82)) if varied else float(rng.uniform(1.45, 1.55))
+    stone = rng.random() < 0.6
     counter = mats.textured(
-        "speckle" if rng.random() < 0.6 else "wood",
+        "speckle" if stone else "wood",
         mats.pick(((0.35, 0.35, 0.36), (0.8, 0.78, 0.74), (0.55, 0.45, 0.35))),
         0.8,
+        paintable=not stone,  # laminate in a plain kitchen; stone keeps its grain
     )
     geoms = [
         box((offset - 0.01, -depth - 0.03, height), (offset + run + 0.01, 0.0, height + 0.035), counter),
         box(
             (offset, -0.012, height + 0.035),
             (offset + run, 0.0, wall_z),
-            mats.textured("tiles", mats.pick(PAINTS), float(rng.uniform(0.4, 0.9))),
+            mats.textured("tiles", mats.pick(PAINTS), float(rng.uniform(0.4, 0.9)), paintable=True),
         ),
     ]
     micro_x = None
@@ -187,6 +194,10 @@ def _kitchen(mats: MaterialBank, palette: Palette, requests: tuple[PartRequest, 
         length = max(length, x + fridge_unit.width / 2)
         targets.update(
             {k: _pick_front(fridge_unit, requests[k], rng) for k, (kind, _) in where.items() if kind == "fridge"}
+        )
+    if varied:  # kettle, toaster, jars: things standing on the counter
+        geoms += objects_on(
+            rng, (offset + 0.05, offset + run - 0.05, -depth + 0.04, -0.08), height + 0.035, 0.3, palette.objects, 6
         )
     max_depth = max(u.depth for u in units if u.body.pos[2] < 0.5)
     fronts = tuple(f for u in units for f in u.fronts)
@@ -233,6 +244,29 @@ def _bookshelf(mats: MaterialBank, palette: Palette) -> Unit:
     return Unit(Body("shelf", (0.0, 0.0, 0.0), tuple(geoms)), (), width, depth, height)
 
 
+def _assets(mats: MaterialBank, palette: Palette, requests: tuple[PartRequest, ...]) -> _Row:
+    """One Meta-World object at human scale on a plain stand (``assets.py``), beside an open
+    bookshelf, in random order."""
+    rng = mats.rng
+    if len(requests) != 1:
+        raise ValueError(f"an assets scene holds exactly one part, got {len(requests)} requests")
+    unit, meshes = asset_unit(requests[0].kind, mats, palette)
+    shelf = _bookshelf(mats, palette)
+    order = (unit, shelf) if rng.random() < 0.5 else (shelf, unit)
+    units, x = [], 0.0
+    for piece in order:
+        units.append(placed(piece, x + piece.width / 2, 0.0))
+        x += piece.width + float(rng.uniform(0.3, 0.6))
+    return _Row(
+        Body("row", (0.0, 0.0, 0.0), (), tuple(u.body for u in units)),
+        x,
+        max(u.depth for u in units),
+        unit.fronts,
+        {0: unit.fronts[0]},
+        meshes,
+    )
+
+
 def _tiny(mats: MaterialBank, palette: Palette, requests: tuple[PartRequest, ...]) -> _Row:
     """One small cabinet with a single hinged door."""
     rng = mats.rng
@@ -243,8 +277,43 @@ def _tiny(mats: MaterialBank, palette: Palette, requests: tuple[PartRequest, ...
     return _Row(Body("row", (0.0, 0.0, 0.0), (), (body,)), unit.width, unit.depth, unit.fronts, targets)
 
 
+def _placement(
+    arrangement: str, row: _Row, size: tuple[float, float, float], rng: np.random.Generator
+) -> tuple[tuple[float, float], float, float]:
+    """Where the row frame goes in the room: origin (x, y), yaw, and the largest y the camera
+    may reach (in front of the row's nearest front corner, less the walk margin).
+
+    The row frame has the wall side at y = 0 and its fronts at y = -depth, x in [0, length]."""
+    lx, ly, _ = size
+    if arrangement == "row":
+        slack = lx - row.length - 2 * 0.3
+        x_start = -lx / 2 + 0.3 + float(rng.uniform(0.0, max(slack, 0.0)))
+        return (x_start, ly / 2), 0.0, ly / 2 - row.depth - WALK_MARGIN
+    if arrangement == "angled":
+        yaw = float(rng.choice([-1.0, 1.0]) * np.radians(rng.uniform(8.0, 25.0)))
+        gap = 0.02
+    elif arrangement == "island":
+        yaw = float(np.radians(rng.uniform(-15.0, 15.0)))
+        gap = float(rng.uniform(0.6, 1.2))
+    else:
+        raise ValueError(f"unknown layout {arrangement!r}")
+    c, s = np.cos(yaw), np.sin(yaw)
+    corners = np.array([[0.0, 0.0], [row.length, 0.0], [0.0, -row.depth], [row.length, -row.depth]])
+    turned = corners @ np.array([[c, s], [-s, c]])  # rows: R(yaw) @ corner
+    y0 = ly / 2 - gap - turned[:, 1].max()
+    slack = lx - np.ptp(turned[:, 0]) - 2 * 0.3
+    x0 = -lx / 2 + 0.3 - turned[:, 0].min() + float(rng.uniform(0.0, max(slack, 0.0)))
+    return (float(x0), float(y0)), yaw, float(y0 + turned[:, 1].min()) - WALK_MARGIN
+
+
 def sample_layout(
-    family: str, requests: tuple[PartRequest, ...], rng: np.random.Generator, texture_px: int = 512
+    family: str,
+    requests: tuple[PartRequest, ...],
+    rng: np.random.Generator,
+    texture_px: int = 512,
+    appearance: str = "textured",
+    lighting: str = "ceiling",
+    arrangement: str = "row",
 ) -> Layout:
     """Sample a room of the given family holding the requested fronts.
 
@@ -253,16 +322,23 @@ def sample_layout(
         requests: the fronts that will move, in part order.
         rng: random generator (the only source of randomness).
         texture_px: side of ordinary textures in pixels (walls and floor use twice that).
+        appearance: material style, one of ``room.APPEARANCES``.
+        lighting: light set-up, one of ``spec.LIGHTINGS``.
+        arrangement: kitchen arrangement, one of ``spec.LAYOUTS``.
 
     Returns:
         The scene (scene frame: z up, floor at z = 0, back wall at +y) and the target fronts.
     """
-    mats = MaterialBank(rng, texture_px)
+    mats = MaterialBank(rng, texture_px, appearance)
     palette = make_palette(mats)
-    builders = {"kitchen": _kitchen, "bedroom": _bedroom, "tiny": _tiny}
+    builders = {"kitchen": _kitchen, "bedroom": _bedroom, "tiny": _tiny, "assets": _assets}
     if family not in builders:
         raise ValueError(f"unknown scene family {family!r}; expected one of {tuple(builders)}")
-    row = builders[family](mats, palette, requests)
+    row = (
+        _kitchen(mats, palette, requests, varied=True)
+        if arrangement != "row"
+        else builders[family](mats, palette, requests)
+    )
     if family == "tiny":
         size = (3.0, 3.4, 2.5)
     else:
@@ -271,26 +347,41 @@ def sample_layout(
             float(rng.uniform(4.6, 5.6)),
             float(rng.uniform(2.5, 2.8)),
         )
+    if arrangement != "row":  # room enough for a turned row and the walk in front of it
+        size = (size[0] + 0.6, size[1] + 0.5, size[2])
     lx, ly, _ = size
-    slack = lx - row.length - 2 * 0.3
-    x_start = -lx / 2 + 0.3 + float(rng.uniform(0.0, max(slack, 0.0)))
-    row_body = replace(row.body, pos=(x_start, ly / 2, 0.0))
+    (x_start, y_wall), yaw, y_walk = _placement(arrangement, row, size, rng)
+    row_body = replace(row.body, pos=(x_start, y_wall, 0.0), yaw=yaw)
     room = Body("room", (0.0, 0.0, 0.0), room_geoms(mats, size))
-    focus = (x_start + row.length / 2, ly / 2 - row.depth)
-    walk = (-lx / 2 + WALK_MARGIN, lx / 2 - WALK_MARGIN, -ly / 2 + WALK_MARGIN, ly / 2 - row.depth - WALK_MARGIN)
+    centre = np.array([row.length / 2, -row.depth])
+    focus = (
+        x_start + np.cos(yaw) * centre[0] - np.sin(yaw) * centre[1],
+        y_wall + np.sin(yaw) * centre[0] + np.cos(yaw) * centre[1],
+    )
+    walk = (-lx / 2 + WALK_MARGIN, lx / 2 - WALK_MARGIN, -ly / 2 + WALK_MARGIN, y_walk)
+    lights, ambient = vary_lighting(
+        lighting, ceiling_lights(rng, size, focus), float(rng.uniform(0.3, 0.45)), size, rng
+    )
     scene = Scene(
         bodies=(room, row_body),
         materials=tuple(mats.materials),
         textures=tuple(mats.textures),
-        lights=ceiling_lights(rng, size, focus),
+        lights=lights,
         fronts=row.fronts,
         walk_area=walk,
-        ambient=float(rng.uniform(0.3, 0.45)),
+        ambient=ambient,
+        mesh_files=tuple(sorted(row.mesh_files.items())),
         description={
             "family": family,
             "room_x_m": round(lx, 3),
             "room_y_m": round(ly, 3),
             "room_z_m": round(size[2], 3),
+            "appearance": appearance,
+            "lighting": lighting,
+            "layout": arrangement,
+            **({"third_party_assets": METAWORLD_CREDIT} if row.mesh_files else {}),
+            "row_yaw_deg": round(float(np.degrees(yaw)), 2),
+            "row_off_wall_m": round(float(ly / 2 - y_wall), 3) if arrangement == "island" else 0.0,
         },
     )
     return Layout(scene, tuple(row.targets[k] for k in range(len(requests))))

@@ -120,15 +120,25 @@ class _Writer:
                 )
             )
             attrs.update({"type": "mesh", "mesh": mesh})
+        elif geom.shape == "mesh":
+            mesh = f"mesh_{len(self.meshes)}"
+            self.meshes.append(ET.Element("mesh", {"name": mesh, "file": geom.mesh, "scale": _fmt(geom.size)}))
+            attrs.update({"type": "mesh", "mesh": mesh})
         else:
             attrs.update({"type": geom.shape, "size": _fmt(geom.size)})
-            if geom.shape in ("cylinder", "capsule"):
+            if geom.shape in ("cylinder", "capsule") and not any(geom.euler):
                 attrs["zaxis"] = _fmt(geom.zaxis)
+        if any(geom.euler):
+            attrs["euler"] = _fmt(geom.euler)
+        if geom.group:
+            attrs["group"] = str(geom.group)
         attrs.update(extra or {})
         ET.SubElement(parent, "geom", attrs)
 
     def body(self, parent: ET.Element, body: Body) -> None:
         element = ET.SubElement(parent, "body", {"name": body.name, "pos": _fmt(body.pos)})
+        if body.yaw:
+            element.set("euler", _fmt([0.0, 0.0, body.yaw]))
         if body.joint is not None:
             joint = body.joint
             ET.SubElement(

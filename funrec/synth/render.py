@@ -17,6 +17,7 @@ import numpy as np
 from funrec.errors import FunrecError
 from funrec.geometry.camera import PinholeIntrinsics
 from funrec.offscreen import ensure_gl_backend, offscreen_context
+from funrec.synth.scene import SEE_THROUGH_GROUP
 from funrec.typed import FloatArray, UInt8Array
 
 if TYPE_CHECKING:
@@ -64,7 +65,8 @@ class OffscreenRenderer:
     """Renders a model from one of its cameras into numpy arrays.
 
     Two passes per frame: a lit colour pass, and a segmentation pass whose id colours and
-    depth buffer are read together.
+    depth buffer are read together. Geoms of ``scene.SEE_THROUGH_GROUP`` (clear glass) appear
+    only in the colour pass, so depth and ids show what lies behind them.
     """
 
     def __init__(self, model: mujoco.MjModel, width: int, height: int, camera: str) -> None:
@@ -90,6 +92,7 @@ class OffscreenRenderer:
         self._camera.type = mujoco.mjtCamera.mjCAMERA_FIXED
         self._camera.fixedcamid = camera_id
         self._option = mujoco.MjvOption()
+        self._has_glass = bool(np.any(model.geom_group == SEE_THROUGH_GROUP))
         self._rect = mujoco.MjrRect(0, 0, width, height)
         self._rgb = np.empty((height, width, 3), np.uint8)
         self._ids = np.empty((height, width, 3), np.uint8)
@@ -105,6 +108,12 @@ class OffscreenRenderer:
         flags = self._scene.flags
         mujoco.mjr_render(self._rect, self._scene, self._context)
         mujoco.mjr_readPixels(self._rgb, None, self._rect, self._context)
+        if self._has_glass:  # the label and depth pass leaves clear glass out
+            self._option.geomgroup[SEE_THROUGH_GROUP] = 0
+            mujoco.mjv_updateScene(
+                self._model, data, self._option, None, self._camera, mujoco.mjtCatBit.mjCAT_ALL, self._scene
+            )
+            self._option.geomgroup[SEE_THROUGH_GROUP] = 1
         flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = True
         flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = True
         try:

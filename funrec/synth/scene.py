@@ -17,8 +17,13 @@ from funrec.typed import UInt8Array
 Vec3 = tuple[float, float, float]
 """A 3-vector as a tuple of floats (hashable, so frozen dataclasses stay comparable)."""
 
-GEOM_SHAPES = ("box", "cylinder", "capsule", "sphere")
-"""Geom shapes the MJCF writer understands; textured boxes become meshes with UV coordinates."""
+SEE_THROUGH_GROUP = 3
+"""Geom group of clear glass: drawn in the colour image, but left out of the depth and label
+pass, so depth and ground-truth masks show the surface behind the pane (as a structured-light
+or time-of-flight sensor reads through clear glass), never a label without its depth."""
+GEOM_SHAPES = ("box", "cylinder", "capsule", "sphere", "mesh")
+"""Geom shapes the MJCF writer understands; textured boxes become meshes with UV coordinates;
+"mesh" is a triangle mesh file of :attr:`Scene.mesh_files` (third-party assets)."""
 PART_KINDS = (
     "door",
     "double_door",
@@ -30,9 +35,15 @@ PART_KINDS = (
     "oven_door",
     "dishwasher_door",
     "sliding_door",
+    "mw_drawer",
+    "mw_door",
+    "mw_window",
+    "mw_window_horiz",
 )
-"""Kinds of articulated fronts the furniture builders make."""
-JOINT_TYPE_OF_KIND = {kind: "prismatic" if kind in ("drawer", "sliding_door") else "revolute" for kind in PART_KINDS}
+"""Kinds of articulated fronts the furniture builders make (``mw_*``: Meta-World assets, see ``assets.py``)."""
+PRISMATIC_KINDS = ("drawer", "sliding_door", "mw_drawer", "mw_window", "mw_window_horiz")
+"""Part kinds on a slide joint."""
+JOINT_TYPE_OF_KIND = {kind: "prismatic" if kind in PRISMATIC_KINDS else "revolute" for kind in PART_KINDS}
 """Joint type ("revolute" or "prismatic") of each front kind."""
 
 
@@ -84,11 +95,21 @@ class Geom:
     """Name of a :class:`Material`."""
     zaxis: Vec3 = (0.0, 0.0, 1.0)
     """Axis of a cylinder or capsule in the body frame (boxes are always axis-aligned)."""
+    group: int = 0
+    """MuJoCo geom group; :data:`SEE_THROUGH_GROUP` marks glass that the depth sensor sees through."""
+    mesh: str = ""
+    """Mesh geoms: path of the mesh file in :attr:`Scene.mesh_files`; ``size`` is then the
+    (3,) scale applied to the file's vertices."""
+    euler: Vec3 = (0.0, 0.0, 0.0)
+    """Orientation in the body frame as MuJoCo xyz Euler angles, radians (third-party assets;
+    overrides ``zaxis`` when non-zero)."""
 
     def __post_init__(self) -> None:
         if self.shape not in GEOM_SHAPES:
             raise ValueError(f"geom shape must be one of {GEOM_SHAPES}, got {self.shape!r}")
-        expected = {"box": 3, "cylinder": 2, "capsule": 2, "sphere": 1}[self.shape]
+        if (self.shape == "mesh") != bool(self.mesh):
+            raise ValueError(f"a mesh geom needs a mesh file and only a mesh geom has one, got {self.shape!r}, {self.mesh!r}")
+        expected = {"box": 3, "cylinder": 2, "capsule": 2, "sphere": 1, "mesh": 3}[self.shape]
         if len(self.size) != expected or min(self.size) <= 0.0:
             raise ValueError(f"{self.shape} needs {expected} positive sizes, got {self.size}")
 
@@ -137,7 +158,7 @@ class Body:
     name: str
     """Body name, unique in the scene."""
     pos: Vec3
-    """Origin in the parent frame, metres (bodies are never rotated relative to their parent)."""
+    """Origin in the parent frame, metres (rotated relative to the parent only by ``yaw``)."""
     geoms: tuple[Geom, ...] = ()
     """Geoms in this body's frame."""
     bodies: tuple[Body, ...] = ()
@@ -146,6 +167,9 @@ class Body:
     """Joint connecting the body to its parent; None welds it."""
     sites: tuple[tuple[str, Vec3], ...] = ()
     """Named points (name, position in the body frame), e.g. handle centres; not rendered."""
+    yaw: float = 0.0
+    """Rotation about the parent's z axis, radians (only a free-standing or angled furniture row
+    uses it; everything below it is axis-aligned in the row frame)."""
 
 
 @dataclass(frozen=True)
@@ -168,6 +192,9 @@ class Front:
     """Direction the fingers wrap around (along the handle bar), body frame."""
     details: dict[str, str | float] = field(default_factory=dict, compare=False)
     """Descriptive facts written to gt.json (furniture, hinge side, handle shape, size)."""
+    panel: tuple[Vec3, Vec3] | None = field(default=None, compare=False)
+    """(centre, half extents) of the front's panel in its body frame when its first geom is
+    not a box (a mesh of a third-party asset); None: the first geom is the panel."""
 
 
 @dataclass(frozen=True)
@@ -212,6 +239,8 @@ class Scene:
     """Head-light ambient intensity (fill light), in [0, 1]."""
     description: dict[str, str | float] = field(default_factory=dict, compare=False)
     """Descriptive facts written to gt.json (room size, family)."""
+    mesh_files: tuple[tuple[str, bytes], ...] = field(default=(), compare=False)
+    """(path relative to scene.xml, file contents) of the meshes that mesh geoms use."""
 
 
 def map_bodies(bodies: tuple[Body, ...], joint_names: dict[str, str]) -> tuple[Body, ...]:
@@ -235,8 +264,10 @@ def map_bodies(bodies: tuple[Body, ...], joint_names: dict[str, str]) -> tuple[B
 
 __all__ = [
     "GEOM_SHAPES",
+    "SEE_THROUGH_GROUP",
     "JOINT_TYPE_OF_KIND",
     "PART_KINDS",
+    "PRISMATIC_KINDS",
     "Body",
     "Front",
     "Geom",

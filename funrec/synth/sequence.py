@@ -24,7 +24,7 @@ from funrec.formats.camera_poses import write_camera_poses
 from funrec.formats.capture import CaptureIntrinsics, CaptureWriter, write_mask
 from funrec.formats.ground_truth import GroundTruthPart, write_ground_truth_json
 from funrec.formats.twin import make_part
-from funrec.synth.hand import forearm_geoms, hand_geoms, skin_color
+from funrec.synth.hand import SLEEVE_MATERIAL, forearm_geoms, hand_geoms, skin_color, with_sleeve
 from funrec.synth.layout import sample_layout
 from funrec.synth.mjcf import CAMERA_NAME, HAND_BODIES, TEXTURE_DIR, RenderRig, scene_to_mjcf
 from funrec.synth.motion import Motion, PartGeometry, plan_motion
@@ -36,7 +36,8 @@ from funrec.synth.render import (
     fovy_for_focal,
     intrinsics_from_fovy,
 )
-from funrec.synth.scene import Body, Front, Material, Scene, map_bodies
+from funrec.synth.room import light_schedule
+from funrec.synth.scene import Body, Front, Geom, Material, Scene, map_bodies
 from funrec.synth.sensor import SensorNoise, noisy_depth, noisy_rgb
 from funrec.synth.spec import SequenceSpec
 
@@ -47,8 +48,9 @@ LOGGER = logging.getLogger(__name__)
 
 FOCAL_AT_480_PX = 525.0
 """Kinect-like focal length at 480 rows, pixels; scaled with the image height."""
-GENERATOR_VERSION = 1
-"""Bumped whenever the same spec would produce different files."""
+GENERATOR_VERSION = 2
+"""Bumped whenever the same spec would produce different files (2: bench families and
+appearances; the spec in gt.json names its family)."""
 
 
 @dataclass(frozen=True)
@@ -93,7 +95,9 @@ def _part_geometry(
         joint = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
         body = _find_body(scene.bodies, front.body)
         body_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, front.body)
-        panel = body.geoms[0]  # every front builder puts its panel first
+        panel = body.geoms[0]  # every front builder puts its panel first (or describes it)
+        if front.panel is not None:
+            panel = Geom("box", front.panel[1], front.panel[0], panel.material)
         R_world_body = data.xmat[body_id].reshape(3, 3)
         p_world_body = data.xpos[body_id]
         handle = data.site_xpos[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, front.handle_site)].copy()
@@ -152,7 +156,7 @@ def _render_frames(
         spec.height,
         fovy,
         hand_geoms("skin"),
-        forearm_geoms("skin"),
+        forearm_geoms("skin", spec.arm, SLEEVE_MATERIAL),
         Material("skin", skin_color(rng), specular=0.1, shininess=0.1),
     )
     model = mujoco.MjModel.from_xml_string(scene_to_mjcf(plan.scene, rig), plan.assets)
@@ -176,8 +180,11 @@ def _render_frames(
         else np.zeros((spec.num_frames, 0, 4, 4))
     )
     quat = np.empty(4)
+    diffuse = model.light_diffuse.copy()
+    light_scale = light_schedule(spec.lighting, model.nlight, spec.num_frames, rng)
     with OffscreenRenderer(model, spec.width, spec.height, CAMERA_NAME) as renderer:
         for f in range(spec.num_frames):
+            model.light_diffuse[:] = diffuse * light_scale[f][:, None]
             for k, address in enumerate(qpos):
                 data.qpos[address] = motion.states[k, f]
             for name, T in poses.items():
@@ -268,11 +275,13 @@ def plan_sequence(spec: SequenceSpec, texture_px: int | None = None) -> Sequence
     scene_rng, motion_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(spec.seed).spawn(2))
     if texture_px is None:
         texture_px = 512 if min(spec.width, spec.height) >= 240 else 128
-    layout = sample_layout(spec.scene, spec.parts, scene_rng, texture_px)
+    layout = sample_layout(spec.scene, spec.parts, scene_rng, texture_px, spec.appearance, spec.lighting, spec.layout)
     names = tuple(f"part_{k}" for k in range(len(spec.parts)))
     joint_names = {front.joint: name for front, name in zip(layout.targets, names)}
     scene = dataclasses.replace(layout.scene, bodies=map_bodies(layout.scene.bodies, joint_names))
-    assets = {f"{TEXTURE_DIR}/{t.name}.png": _png(t.image) for t in scene.textures}
+    if spec.arm == "sleeve":
+        scene = with_sleeve(scene, np.random.default_rng(np.random.SeedSequence(spec.seed).spawn(4)[3]), texture_px)
+    assets = {f"{TEXTURE_DIR}/{t.name}.png": _png(t.image) for t in scene.textures} | dict(scene.mesh_files)
     scene_xml = scene_to_mjcf(scene, model_name=spec.name)
     model = mujoco.MjModel.from_xml_string(scene_xml, assets)
     data = mujoco.MjData(model)
@@ -308,6 +317,7 @@ def generate_sequence(spec: SequenceSpec, out_dir: Path, progress: Callable[[int
         gt = temp / "gt"
         (gt / TEXTURE_DIR).mkdir(parents=True)
         for path, data in plan.assets.items():
+            (gt / path).parent.mkdir(parents=True, exist_ok=True)
             (gt / path).write_bytes(data)
         (gt / "scene.xml").write_text(plan.scene_xml)
         model = mujoco.MjModel.from_xml_path(str(gt / "scene.xml"))  # the written file must load on its own

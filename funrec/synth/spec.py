@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from funrec.synth.room import APPEARANCES
 from funrec.synth.scene import PART_KINDS
 
 SCENE_FAMILIES: dict[str, tuple[str, ...]] = {
@@ -20,9 +21,23 @@ SCENE_FAMILIES: dict[str, tuple[str, ...]] = {
         "dishwasher_door",
     ),
     "bedroom": ("sliding_door", "drawer"),
+    "assets": ("mw_drawer", "mw_door", "mw_window", "mw_window_horiz"),
     "tiny": ("door",),
 }
 """Scene families and the part kinds each can hold."""
+LIGHTINGS = ("ceiling", "dim", "harsh", "window", "changing")
+"""Light set-ups: "ceiling" (2-3 ceiling spots, the default), "dim" (half the light, low
+ambient), "harsh" (one strong shadowing spot, little fill), "window" (a bright low directional
+light from one side plus one ceiling spot) and "changing" (ceiling spots whose brightness
+changes during the sequence: one is switched off or on, the others drift)."""
+ARMS = ("proxy", "sleeve", "elbow")
+"""Arms: "proxy" (skin capsules, the default), "sleeve" (a rigid box arm in a patterned
+textured sleeve) and "elbow" (skin capsules bent at the elbow)."""
+LAYOUTS = ("row", "angled", "island", "corner")
+"""Kitchen arrangements: "row" (one row against the back wall, the default), "angled" (the row
+turned 8-25 degrees off the wall, so no front is axis-aligned), "island" (the row stands free,
+0.6-1.2 m off the wall and turned up to 15 degrees) and "corner" (an L: a second row with
+fronts on a side wall)."""
 DRAWER_LEVELS = ("top", "middle", "bottom")
 """Allowed :attr:`PartRequest.level` values."""
 
@@ -94,6 +109,21 @@ class SequenceSpec:
     """Write masks/hand/ into the capture (ground-truth hand masks are always written)."""
     noise: bool = True
     """Apply the Kinect-like depth and RGB noise; False writes exact (mm-quantised) depth."""
+    family: str = "textured"
+    """Bench family the sequence belongs to (``funrec bench`` reports one row per family)."""
+    appearance: str = "textured"
+    """Material style: "textured" (every surface textured), "plain" (flat matte or glossy
+    paint on furniture, appliances and walls) or "dark" (near-black fronts and appliances,
+    glazed wall cabinets); see ``room.APPEARANCES``."""
+    lighting: str = "ceiling"
+    """Light set-up, one of :data:`LIGHTINGS`."""
+    arm: str = "proxy"
+    """The person's arm, one of :data:`ARMS`."""
+    joint_speed: float = 1.0
+    """Factor on the sampled joint speed (0.3-1.3 rad/s revolute, 0.22-0.35 m/s prismatic):
+    below 1 slower openings, above 1 faster ones (short sequences may speed them up further)."""
+    layout: str = "row"
+    """Furniture arrangement, one of :data:`LAYOUTS`."""
 
     def __post_init__(self) -> None:
         if not self.name or "/" in self.name or self.name.startswith("."):
@@ -115,8 +145,23 @@ class SequenceSpec:
         unused = set(range(len(self.parts))) - {i.part for i in self.interactions}
         if unused:
             raise ValueError(f"{self.name}: parts {sorted(unused)} are never interacted with")
+        for value, allowed, what in (
+            (self.lighting, LIGHTINGS, "lighting"),
+            (self.arm, ARMS, "arm"),
+            (self.layout, LAYOUTS, "layout"),
+        ):
+            if value not in allowed:
+                raise ValueError(f"{self.name}: unknown {what} {value!r}; expected one of {allowed}")
+        if self.layout != "row" and self.scene != "kitchen":
+            raise ValueError(f"{self.name}: layout {self.layout!r} needs a kitchen scene, got {self.scene!r}")
+        if not 0.1 <= self.joint_speed <= 5.0:
+            raise ValueError(f"{self.name}: joint_speed must be in [0.1, 5], got {self.joint_speed}")
+        if self.appearance not in APPEARANCES:
+            raise ValueError(f"{self.name}: unknown appearance {self.appearance!r}; expected one of {APPEARANCES}")
+        if not self.family or not self.family.replace("_", "").isalnum():
+            raise ValueError(f"{self.name}: family must be a plain word, got {self.family!r}")
         if self.num_frames < 8 or self.width < 16 or self.height < 16 or self.fps <= 0:
             raise ValueError(f"{self.name}: need >= 8 frames, >= 16x16 pixels and fps > 0")
 
 
-__all__ = ["DRAWER_LEVELS", "SCENE_FAMILIES", "Interaction", "PartRequest", "SequenceSpec"]
+__all__ = ["ARMS", "DRAWER_LEVELS", "LAYOUTS", "LIGHTINGS", "SCENE_FAMILIES", "Interaction", "PartRequest", "SequenceSpec"]

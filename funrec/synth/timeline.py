@@ -97,7 +97,7 @@ def schedule(
     plans: list[list[tuple[float, float]]] = []  # per interaction: (start, end) joint states per stroke
     for interaction in spec.interactions:
         k = interaction.part
-        speed = rng.uniform(0.9, 1.3) if joint_types[k] == "revolute" else rng.uniform(0.22, 0.35)
+        speed = (rng.uniform(0.9, 1.3) if joint_types[k] == "revolute" else rng.uniform(0.22, 0.35)) * spec.joint_speed
         phases = [rng.uniform(0.7, 1.0), rng.uniform(0.25, 0.4), rng.uniform(0.15, 0.3)]
         strokes = []
         for j, target in enumerate(interaction.targets):

@@ -42,6 +42,8 @@ class Palette:
     """Dark appliance windows and recessed grips."""
     objects: tuple[str, ...]
     """Things stored inside furniture."""
+    pane: str = ""
+    """Clear glass of glazed wall-cabinet doors; empty: wall cabinets have solid doors."""
 
 
 @dataclass(frozen=True)
@@ -233,7 +235,9 @@ def wall_cabinet(
     static += interior_objects(rng, palette, width, depth, (PANEL, shelf + PANEL), min(shelf, height - shelf) - 0.06)
     x0, x1, z0, z1 = -width / 2 + GAP / 2, width / 2 - GAP / 2, GAP, height - GAP
     style = front_style(rng, palette, panel)
-    unit = {"furniture": "wall_cabinet"}
+    if palette.pane:
+        style = FrontStyle(style.panel, style.handle, style.handle_shape, style.inset, palette.pane)
+    unit = {"furniture": "wall_cabinet", "glazed": "yes" if palette.pane else "no"}
     if config == "double":
         leaves = (("left", (x0, -GAP / 2, z0, z1)), ("right", (GAP / 2, x1, z0, z1)))
         kind = "wall_double_door"
