@@ -6,8 +6,6 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-import pytest
-
 ROOT = Path(__file__).resolve().parents[1]
 TESTS = ROOT / "tests"
 
@@ -109,12 +107,6 @@ def test_cycle_finder_on_a_known_graph() -> None:
     assert _cycles({"a": {"b"}, "b": set()}) == []
 
 
-@pytest.mark.xfail(
-    strict=False,
-    reason="three known circles (issue 13), each a type in the wrong file: funrec.bench.report <-> funrec.bench.run "
-    "(BenchConfig), funrec.synth.handpath <-> funrec.synth.motion (PartGeometry), "
-    "funrec_robot.plan <-> funrec_robot.whole_body (PlanConfig)",
-)
 def test_import_graph() -> None:
     graph = _module_graph()
     assert "funrec.pipeline" in graph and "funrec_robot.cli" in graph, "packages not found"

@@ -15,7 +15,7 @@ from funrec.bench.evaluate import TwinEvaluation, evaluation_to_json
 from funrec.bench.fragment_metrics import FragmentScore
 
 if TYPE_CHECKING:
-    from funrec.bench.run import BenchConfig
+    from funrec.bench.config import BenchConfig
 
 @dataclass(frozen=True)
 class SequenceResult:

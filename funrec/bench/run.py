@@ -17,11 +17,17 @@ import shlex
 import shutil
 import subprocess
 import sys
-from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
-from funrec.bench.evaluate import EvalConfig, evaluate_twin, failed_evaluation
+from funrec.bench.config import (
+    ABLATION_SETS,
+    METHODS,
+    SPEED_BASELINES,
+    STANDARD_ABLATIONS,
+    BenchConfig,
+)
+from funrec.bench.evaluate import evaluate_twin, failed_evaluation
 from funrec.bench.fragment_metrics import FragmentScore, score_twin_fragments
 from funrec.bench.launcher import LimitedRun
 from funrec.bench.report import (
@@ -41,92 +47,13 @@ from funrec.formats.staged_folder import refuse_output_over_input
 
 LOGGER = logging.getLogger(__name__)
 
-METHODS = ("funrec", "oracle", "trivial", "open3d")
-"""Methods :func:`run_bench` can run: the reconstruction, and the reference baselines of
-:mod:`funrec.bench.baselines` (ground-truth oracle, trivial twin, Open3D odometry + TSDF)."""
-SPEED_BASELINES = ("open3d", "none")
-"""Values of :attr:`BenchConfig.speed_baseline`."""
 DEFAULT_FAMILY = "textured"
 """Family of a sequence whose gt.json names none (generator version 1: the textured bench)."""
 _BASELINE_SNIPPET = "import sys; from funrec.bench.baselines import {function}; {function}(sys.argv[1], sys.argv[2])"
 _PROJECT_ROOT = Path(__file__).resolve().parents[1]
 
-STANDARD_ABLATIONS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("no pose graph", ("--no-tracking-use-pose-graph",)),
-    ("no joint constraint", ("--no-part-motion-use-joint-constraint",)),
-    ("no re-seeding", ("--no-point-tracks-reseed",)),
-    ("no hand masks", ("--no-use-hand-masks",)),
-)
-"""The ablation set "standard": each row switches off one stage with one reconstruct flag, so
-its worth is the difference to the full method: the camera pose graph (loop closures), the
-articulation-constrained part-motion refinement, point-track re-seeding and the hand masks."""
-CUES_ABLATIONS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("no depth proposals", ("--no-depth-proposal-enabled",)),
-    ("no joint type in depth", ("--no-joint-type-enabled",)),
-    ("no hands first", ("--no-hands-first",)),
-    ("dense flow on", ("--point-tracks-dense-flow",)),
-    ("no hand masks, no hands first", ("--no-use-hand-masks", "--no-hands-first")),
-)
-"""The ablation set "cues": what each texture-independent cue buys (issue 12): parts proposed from
-depth where tracks give none, the joint type decided in depth, hands detected before the parts,
-and the dense-flow track cue (off by default, on here)."""
-ABLATION_SETS: dict[str, tuple[tuple[str, tuple[str, ...]], ...]] = {
-    "none": (), "standard": STANDARD_ABLATIONS, "cues": CUES_ABLATIONS, "all": STANDARD_ABLATIONS + CUES_ABLATIONS}
-"""Named ablation sets selectable with BenchConfig.ablation_set."""
-
 ProgressCallback = Progress
 """``progress(done, total)``, called after each (method, sequence) run; the CLI draws a bar."""
-
-
-@dataclass(frozen=True)
-class BenchConfig:
-    """Settings of :func:`run_bench`."""
-
-    method: str = "funrec"
-    """Method to run: "funrec" (reconstruct in a subprocess), "oracle" or "trivial" (funrec.bench.baselines)."""
-    suite: str = "bench"
-    """Named suite of funrec.synth used to generate missing sequences (a family such as "bench" or
-    "plain", "families" for all of them, or "smoke"; see funrec.synth.suite.SUITES)."""
-    timeout_s: float = 1800.0
-    """Wall-time limit per sequence, seconds; a run that exceeds it is killed and is a failure row."""
-    only: tuple[str, ...] | None = None
-    """Run only these sequence names (None: every sequence of the suite folder)."""
-    reconstruct_args: tuple[str, ...] = ()
-    """Extra arguments appended to ``funrec reconstruct CAPTURE -o TWIN`` (method "funrec" and ablations)."""
-    ablations: tuple[tuple[str, tuple[str, ...]], ...] = ()
-    """(label, extra reconstruct args) pairs; each runs "funrec reconstruct" with reconstruct_args
-    plus its extra args as an additional method and gets a row in the ablation table."""
-    ablation_set: str = "none"
-    """Named ablations run in the same bench, after ``ablations``: "none", "standard" (no
-    camera pose graph, no joint-constrained part motion, no track re-seeding, no hand masks),
-    "cues" (no depth proposals, no joint type in depth, no hands first, dense flow on, neither
-    hand masks nor hands first) or "all" (both)."""
-    ablation_sequences: str | None = None
-    """Comma-separated sequence names the ablations run on (None: every sequence); the ablation
-    table then compares them with the full method on the same sequences."""
-    generate_missing: bool = True
-    """Generate missing sequences with funrec.synth.generate_suite before running."""
-    jobs: int = 1
-    """Sequences run in parallel (each in its own subprocess), or the CPUs of the Ray instance of --ray local."""
-    ray: str | None = None
-    """Run the sequences as Ray tasks through funrec batch's scheduler: 'local' starts a Ray instance on this
-    machine, otherwise a cluster address ('auto', 'ray://host:10001') whose nodes see the suite and report
-    folders; None runs local processes."""
-    memory_limit_mb: int = 0
-    """Address-space limit (RLIMIT_AS) of each run, MiB, as in funrec batch; 0 = none."""
-    task_memory_mb: int = 2000
-    """Resident memory Ray reserves for each run with --ray, MiB, as in funrec batch (0: none)."""
-    evaluation: EvalConfig = EvalConfig()
-    """Evaluation settings."""
-    speed_baseline: str = "open3d"
-    """Reference method timed in the same run on the same captures, one at a time like the main
-    method: "open3d" (Open3D RGB-D odometry + TSDF integration, funrec.bench.baselines) or "none".
-    The report gives the main method's throughput over the baseline's on the sequences both ran.
-    Runs only when the method is "funrec"."""
-    speed_baseline_sequences: str | None = None
-    """Comma-separated sequence names the speed baseline runs on (None: every sequence). Open3D
-    runs ~1.7 frames/s at 640x480 on 2 cores, so a subset keeps the bench short."""
-
 
 
 def _method_command(method: str, extra: tuple[str, ...], capture: str, twin: str) -> list[str]:
@@ -299,7 +226,7 @@ def _subset(captures: list[Path], selection: str | None, what: str) -> list[Path
 def run_bench(
     suite_dir: str | Path,
     out_dir: str | Path,
-    config: BenchConfig = BenchConfig(),
+    config: BenchConfig = BenchConfig(),  # noqa: B008 (frozen, immutable default)
     progress: ProgressCallback | None = None,
     command_line: str | None = None,
 ) -> BenchReport:

@@ -17,7 +17,7 @@ from funrec.synth.timeline import Timeline
 from funrec.typed import FloatArray
 
 if TYPE_CHECKING:
-    from funrec.synth.motion import PartGeometry
+    from funrec.synth.part_geometry import PartGeometry
 
 HIDDEN_M = np.array([0.0, 0.0, -10.0])
 """Where the hand proxy waits when not in use (under the floor), metres."""

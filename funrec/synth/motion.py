@@ -13,45 +13,15 @@ import numpy as np
 from scipy.ndimage import gaussian_filter1d
 from scipy.spatial.transform import Rotation
 
-from funrec.geometry.joints import joint_transforms
 from funrec.geometry.transforms import make_transform
 from funrec.synth.handpath import hand_trajectory
+from funrec.synth.part_geometry import PartGeometry
 from funrec.synth.spec import SequenceSpec
 from funrec.synth.timeline import Timeline, schedule
 from funrec.typed import FloatArray
 
 WALK_CURVE_M = 0.25
 """Largest sideways bulge of a walk, metres."""
-
-
-@dataclass(frozen=True)
-class PartGeometry:
-    """A ground-truth part at its canonical (closed) state, world frame."""
-
-    joint_type: str
-    """"revolute" or "prismatic"."""
-    axis: FloatArray
-    """(3,) unit joint axis; positive states open the part."""
-    pivot: FloatArray | None
-    """(3,) a point on the revolute axis; None for prismatic parts."""
-    upper: float
-    """Upper joint limit (radians or metres); the closed state is 0."""
-    handle: FloatArray
-    """(3,) handle centre."""
-    grip_axis: FloatArray
-    """(3,) unit direction of the handle bar (sign irrelevant)."""
-    centre: FloatArray
-    """(3,) centre of the front panel."""
-    normal: FloatArray
-    """(3,) unit outward normal of the front (towards the room), horizontal."""
-    width: float
-    """Width of the front, metres (door swing clearance)."""
-    handle_standoff: float
-    """Distance from the front surface to the handle centre, metres."""
-
-    def poses(self, states: FloatArray) -> FloatArray:
-        """(F, 4, 4) joint transforms (canonical -> posed, world frame) at (F,) states."""
-        return joint_transforms(self.joint_type, self.axis, self.pivot, states)
 
 
 @dataclass(frozen=True)
@@ -350,4 +320,4 @@ def plan_motion(
     return Motion(T_world_camera, states, T_world_grasp, T_world_forearm, intervals, timeline)
 
 
-__all__ = ["Motion", "PartGeometry", "look_at", "min_jerk", "plan_motion", "smooth_noise"]
+__all__ = ["Motion", "look_at", "min_jerk", "plan_motion", "smooth_noise"]

@@ -27,7 +27,8 @@ from funrec.formats.twin import make_part
 from funrec.synth.hand import SLEEVE_MATERIAL, forearm_geoms, hand_geoms, skin_color, with_sleeve
 from funrec.synth.layout import sample_layout
 from funrec.synth.mjcf import CAMERA_NAME, HAND_BODIES, TEXTURE_DIR, RenderRig, scene_to_mjcf
-from funrec.synth.motion import Motion, PartGeometry, plan_motion
+from funrec.synth.motion import Motion, plan_motion
+from funrec.synth.part_geometry import PartGeometry
 from funrec.synth.points import SurfaceAccumulator, write_ply
 from funrec.synth.render import (
     R_MUJOCO_OPENCV,
