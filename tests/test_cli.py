@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 
 from funrec.formats.capture import CaptureIntrinsics, CaptureWriter
+from tests.helpers.twins import oracle_twin_with_contact
 
 
 def _funrec(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
@@ -65,27 +66,8 @@ def test_eval_of_the_oracle_twin_is_perfect(tiny_capture: Path, tmp_path: Path) 
     assert evaluation["parts"][0]["axis_error_deg"] < 1e-6
 
 
-def _oracle_with_contact(tiny_capture: Path, twin: Path) -> tuple[Path, str, np.ndarray]:
-    """The oracle twin of the tiny capture with an affordance exactly at the true handle."""
-    from funrec.bench.baselines import write_oracle_twin
-    from funrec.formats.affordances import Affordances, Interaction, PartAffordance, write_affordances
-    from funrec.formats.ground_truth import read_ground_truth
-    from funrec.geometry.transforms import invert_transform, make_transform, transform_points
-
-    write_oracle_twin(tiny_capture, twin)
-    gt = read_ground_truth(tiny_capture / "gt")
-    (truth,) = gt.parts
-    contact = transform_points(invert_transform(gt.T_world_camera[0]), truth.handle_world[None])[0]  # oracle world: camera 0
-    frames = np.arange(truth.intervals[0][0], truth.intervals[0][1] + 1)
-    affordance = PartAffordance(truth.part.name, truth.part.joint_type, contact, make_transform(np.eye(3), contact), True,
-                                (Interaction(frames, frames / 15.0, np.zeros(len(frames))),), np.zeros((0, 3)), np.zeros(0),
-                                np.zeros(2), np.tile(contact, (2, 1)))
-    write_affordances(twin, Affordances((affordance,), (), "detected", 15.0))
-    return twin, truth.part.name, contact
-
-
 def test_query_lists_parts_and_gives_grasps(tiny_capture: Path, tmp_path: Path) -> None:
-    twin, name, contact = _oracle_with_contact(tiny_capture, tmp_path / "twin")
+    twin, name, contact = oracle_twin_with_contact(tiny_capture, tmp_path / "twin")
     result = _funrec("query", str(twin))
     assert result.returncode == 0, result.stderr
     assert name in result.stdout and " ".join(f"{v:+.3f}" for v in contact) in result.stdout
@@ -106,7 +88,7 @@ def test_query_lists_parts_and_gives_grasps(tiny_capture: Path, tmp_path: Path) 
 
 
 def test_eval_scores_the_contact_point(tiny_capture: Path, tmp_path: Path) -> None:
-    twin, _, _ = _oracle_with_contact(tiny_capture, tmp_path / "twin")
+    twin, _, _ = oracle_twin_with_contact(tiny_capture, tmp_path / "twin")
     result = _funrec("eval", str(twin), str(tiny_capture / "gt"), "--json", str(tmp_path / "eval.json"))
     assert result.returncode == 0, result.stderr
     assert "contact 0.0 cm" in result.stdout

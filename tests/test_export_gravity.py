@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 from funrec.export.sim_model import gravity_load
 from funrec.export.simulation import ExportConfig, export_simulation
 from tests.gravity_hold import HOLD_SECONDS, STATE_FRACTIONS, hold_mjcf, hold_urdf, hold_usd
-from tests.test_export_urdf import FAST_EXPORT, T_WORLD_CABINET, write_cabinet_twin
+from tests.helpers.twins import FAST_EXPORT, T_WORLD_CABINET, write_cabinet_twin
 
 HOLD_POSITION_MM = 1.0
 HOLD_ANGLE_DEG = 0.1

@@ -16,7 +16,7 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from funrec.export.simulation import ExportConfig, export_simulation
-from tests.test_export_urdf import FAST_EXPORT, write_cabinet_twin
+from tests.helpers.twins import FAST_EXPORT, write_cabinet_twin
 
 
 @pytest.fixture(scope="module")
@@ -73,9 +73,9 @@ def test_rerun_recording_reads_back(tiny_capture: Path, tmp_path: Path) -> None:
     from funrec.export.rerun_log import write_rerun
     from funrec.formats.capture import load_capture
     from funrec.formats.twin import read_articulation
-    from tests.test_cli import _oracle_with_contact
+    from tests.helpers.twins import oracle_twin_with_contact
 
-    twin, part, _ = _oracle_with_contact(tiny_capture, tmp_path / "oracle")
+    twin, part, _ = oracle_twin_with_contact(tiny_capture, tmp_path / "oracle")
     rrd = write_rerun(twin, tmp_path / "twin.rrd", load_capture(tiny_capture))
     frames: dict[str, set[int]] = defaultdict(set)
     static = set()

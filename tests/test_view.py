@@ -3,7 +3,6 @@ slider moves its part by the joint transform."""
 
 from __future__ import annotations
 
-import socket
 import urllib.request
 from pathlib import Path
 
@@ -12,18 +11,14 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from funrec.formats.affordances import Affordances, Interaction, PartAffordance, write_affordances
-from funrec.formats.camera_poses import write_camera_poses
-from funrec.formats.twin import TwinArticulation, make_part, write_articulation
 from funrec.geometry.joints import joint_transform
 from funrec.geometry.transforms import make_transform
+from tests.helpers.view_twin import AXIS, PIVOT, free_port, write_view_twin
 
 viser = pytest.importorskip("viser")
 
 from funrec.view import ViewConfig, build_twin_view  # noqa: E402 (after the skip)
 
-AXIS, PIVOT = np.array([0.0, 0.0, 1.0]), np.array([0.5, 1.0, 0.0])
-CONTACT = np.array([0.1, 0.95, 0.9])
 # Node poses are float64 quaternions and positions; a matrix -> quaternion -> matrix round trip
 # costs ~1e-15, so 1e-9 means "the same pose".
 EXACT = 1e-9
@@ -31,35 +26,11 @@ EXACT = 1e-9
 
 @pytest.fixture()
 def twin(tmp_path: Path) -> Path:
-    (tmp_path / "meshes").mkdir()
-    trimesh.creation.box(extents=(2.0, 0.1, 2.0)).export(str(tmp_path / "meshes/static.ply"))
-    door = trimesh.creation.box(extents=(0.4, 0.02, 0.8))
-    door.apply_translation([0.3, 0.95, 0.5])
-    door.export(str(tmp_path / "meshes/part_0.ply"))
-    drawer = trimesh.PointCloud(np.random.default_rng(0).uniform(-0.1, 0.1, (50, 3)))
-    drawer.export(str(tmp_path / "meshes/part_1.ply"))
-    parts = (
-        make_part("part_0", "revolute", AXIS, PIVOT, [5, 6, 7], [0.0, 0.4, 1.2], mesh="meshes/part_0.ply"),
-        make_part("part_1", "prismatic", [0.0, -1.0, 0.0], None, [12, 13], [0.0, 0.25], mesh="meshes/part_1.ply"),
-    )
-    write_articulation(tmp_path / "articulation.json", TwinArticulation(30, parts, static_mesh="meshes/static.ply"))
-    T_world_camera = np.stack([make_transform(Rotation.from_euler("y", 2.0 * i, degrees=True).as_matrix(), [0.05 * i, 0.0, -1.0]) for i in range(30)])
-    write_camera_poses(tmp_path / "camera_poses.txt", T_world_camera)
-    frames = np.arange(4, 8)
-    affordance = PartAffordance("part_0", "revolute", CONTACT, make_transform(np.eye(3), CONTACT), True,
-                                (Interaction(frames, frames / 15.0, np.zeros(4)),), np.zeros((0, 3)), np.zeros(0), np.zeros(2), np.tile(CONTACT, (2, 1)))
-    write_affordances(tmp_path, Affordances((affordance,), (("part_1", "never held"),), "detected", 15.0))
-    return tmp_path
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+    return write_view_twin(tmp_path)
 
 
 def test_viewer_shows_the_twin_and_sliders_move_parts(twin: Path) -> None:
-    port = _free_port()
+    port = free_port()
     server = viser.ViserServer(host="127.0.0.1", port=port, verbose=False)
     try:
         view = build_twin_view(server, twin, ViewConfig(frustum_every=10))
@@ -87,7 +58,7 @@ def test_viewer_shows_the_twin_and_sliders_move_parts(twin: Path) -> None:
 
 
 def test_time_slider_replays_layers_toggle_and_camera_aims_at_parts(twin: Path) -> None:
-    server = viser.ViserServer(host="127.0.0.1", port=_free_port(), verbose=False)
+    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
     try:
         view = build_twin_view(server, twin, ViewConfig(frustum_every=10))
         # Frustums are line segments (8 per drawn pose), never filled shapes.
@@ -126,7 +97,7 @@ def test_frustum_segments_reach_the_image_corners() -> None:
 def test_missing_twin_file_names_it(tmp_path: Path) -> None:
     from funrec.errors import FormatError
 
-    server = viser.ViserServer(host="127.0.0.1", port=_free_port(), verbose=False)
+    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
     try:
         with pytest.raises(FormatError, match=r"articulation\.json"):
             build_twin_view(server, tmp_path)

@@ -11,8 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.test_view import _free_port
-from tests.test_view import twin as twin  # noqa: F401, PLC0414 - the hand-built twin fixture
+from tests.helpers.view_twin import free_port, write_view_twin
 
 CHROMIUM, CHROMEDRIVER = "/usr/bin/chromium", "/usr/bin/chromedriver"
 PART_RGB = np.array([255, 140, 0])
@@ -67,14 +66,19 @@ def settled_screenshot(driver, changed_from: np.ndarray | None = None, timeout_s
 
 
 @pytest.mark.slow
-def test_view_in_chromium_shows_the_part_and_the_time_slider_moves_it(twin: Path, tmp_path: Path) -> None:  # noqa: F811
+@pytest.fixture()
+def twin(tmp_path: Path) -> Path:
+    return write_view_twin(tmp_path / "twin")
+
+
+def test_view_in_chromium_shows_the_part_and_the_time_slider_moves_it(twin: Path, tmp_path: Path) -> None:
     viser = pytest.importorskip("viser")
     from selenium.webdriver.common.by import By
     from selenium.webdriver.common.keys import Keys
 
     from funrec.view import build_twin_view
 
-    port = _free_port()
+    port = free_port()
     server = viser.ViserServer(host="127.0.0.1", port=port, verbose=False)
     driver = browser()
     try:

@@ -147,3 +147,22 @@ def export(tmp_path: Path, config: ExportConfig = FAST_EXPORT, with_parts: bool 
     twin_dir = tmp_path / "twin"
     write_cabinet_twin(twin_dir, with_parts=with_parts)
     return export_simulation(twin_dir, config)
+
+
+def oracle_twin_with_contact(tiny_capture: Path, twin: Path) -> tuple[Path, str, np.ndarray]:
+    """The oracle twin of the tiny capture with an affordance exactly at the true handle."""
+    from funrec.bench.baselines import write_oracle_twin
+    from funrec.formats.affordances import Affordances, Interaction, PartAffordance, write_affordances
+    from funrec.formats.ground_truth import read_ground_truth
+    from funrec.geometry.transforms import invert_transform, make_transform, transform_points
+
+    write_oracle_twin(tiny_capture, twin)
+    gt = read_ground_truth(tiny_capture / "gt")
+    (truth,) = gt.parts
+    contact = transform_points(invert_transform(gt.T_world_camera[0]), truth.handle_world[None])[0]  # oracle world: camera 0
+    frames = np.arange(truth.intervals[0][0], truth.intervals[0][1] + 1)
+    affordance = PartAffordance(truth.part.name, truth.part.joint_type, contact, make_transform(np.eye(3), contact), True,
+                                (Interaction(frames, frames / 15.0, np.zeros(len(frames))),), np.zeros((0, 3)), np.zeros(0),
+                                np.zeros(2), np.tile(contact, (2, 1)))
+    write_affordances(twin, Affordances((affordance,), (), "detected", 15.0))
+    return twin, truth.part.name, contact
