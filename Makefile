@@ -8,7 +8,8 @@ export PYOPENGL_PLATFORM ?= egl
 
 .PHONY: setup demo test test-slow browser bench lint clean
 
-# Open3D needs libusb at import time; MuJoCo's offscreen renderer needs EGL or OSMesa.
+# Open3D needs libusb at import time; MuJoCo's offscreen renderer needs EGL or OSMesa. apt waits up to
+# 10 minutes for the package lock when another install holds it, rather than failing.
 SYSTEM_LIBS := libusb-1.0-0 libegl1 libgl1 libosmesa6
 
 $(STAMP): pyproject.toml
@@ -16,7 +17,7 @@ $(STAMP): pyproject.toml
 	if [ -n "$$missing" ]; then \
 	  echo "installing system packages:$$missing"; \
 	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
-	  $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq $$missing; \
+	  $$SUDO apt-get -o DPkg::Lock::Timeout=600 update -qq && $$SUDO apt-get -o DPkg::Lock::Timeout=600 install -y -qq $$missing; \
 	fi
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
@@ -39,7 +40,7 @@ browser:
 	if [ -n "$$missing" ]; then \
 	  echo "installing system packages:$$missing"; \
 	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
-	  $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq $$missing; \
+	  $$SUDO apt-get -o DPkg::Lock::Timeout=600 update -qq && $$SUDO apt-get -o DPkg::Lock::Timeout=600 install -y -qq $$missing; \
 	fi
 
 test-slow: $(STAMP) browser
