@@ -65,12 +65,12 @@ def settled_screenshot(driver, changed_from: np.ndarray | None = None, timeout_s
     return png
 
 
-@pytest.mark.slow
 @pytest.fixture()
 def twin(tmp_path: Path) -> Path:
     return write_view_twin(tmp_path / "twin")
 
 
+@pytest.mark.slow
 def test_view_in_chromium_shows_the_part_and_the_time_slider_moves_it(twin: Path, tmp_path: Path) -> None:
     viser = pytest.importorskip("viser")
     from selenium.webdriver.common.by import By
