@@ -188,6 +188,10 @@ def run_capture(capture: str | Path, out_dir: str | Path, config: BatchConfig = 
         status, parts, error = "timeout", None, f"timeout after {config.timeout_s:g} s"
     elif run.returncode != 0 or not twin_is_complete(twin):
         status, parts, error = "failed", None, f"exit code {run.returncode}: {last_log_line(log_path)}"
+        if config.memory_limit_mb and run.returncode not in (0, 2):
+            # Running out of a memory limit shows up in many guises (MemoryError, "failed to map segment from
+            # shared object" when a library cannot even be loaded): say that the limit may be the cause.
+            error += f" (the run had a {config.memory_limit_mb} MiB address-space limit; raise --memory-limit-mb if it ran out)"
     else:
         status, parts, error = "ok", _part_count(twin), None
     row = CaptureResult(capture.name, status, parts, run.seconds, run.peak_mb, error, run.cpu_s)
