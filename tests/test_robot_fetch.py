@@ -50,7 +50,8 @@ def test_fetch_gets_servos_and_loses_its_scene(fetch, model) -> None:
     assert model.nu == fetch.nq + len(fetch.gripper.joints) + len(fetch.held_joints)
     assert model.neq == 0  # the mocap weld of the file stays behind with the mocap body
     assert model.nmocap == 0 and mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, ROBOT_PREFIX + "table0") < 0
-    assert model.body_mass[indices.bodies].sum() == pytest.approx(120.08, abs=0.1)  # kg, as in the file
+    # kg: the file's 120.08 less its two 4 kg fingers replaced by the URDF's 0.0798 kg (robots/fetch.yaml simulation.masses)
+    assert model.body_mass[indices.bodies].sum() == pytest.approx(120.08 - 2 * (4.0 - 0.0798), abs=0.1)
     slide = model.joint(ROBOT_PREFIX + "robot0:slide0")
     assert model.dof_damping[slide.dofadr[0]] == 100.0  # the YAML's override of the file's 1e11
 
@@ -90,10 +91,11 @@ def test_fetch_ik_unloads_the_wrist_through_the_null_space(fetch, tmp_path) -> N
     from tests.helpers.robot_scenes import PRISMATIC_CASE, write_gt_scene
 
     model = build_mujoco_model(fetch, write_gt_scene(PRISMATIC_CASE, tmp_path) / "scene.xml")
-    config = IKConfig(gravity_free_share=0.4)
+    config = IKConfig(gravity_free_share=0.2)
     ik = WholeBodyIK(fetch, model, part_joint(model, "part_0"), np.zeros((1, 3)), [], config)
     gravity = ik.tasks[2]
-    # Elbow up, wrist straight: the 4 kg fingers load the wrist flex joint with about 55 % of its limit.
+    # Elbow up, wrist straight: the hand loads the wrist flex joint with about 26 % of its limit (measured with the
+    # URDF's 0.08 kg fingers; the file's 4 kg fingers gave 55 %), above the 20 % share the IK is asked to keep free of.
     q = fetch.q_home.copy()
     q[fetch.joint_names.index("robot0:wrist_flex_joint")] = 0.0
     T = ik.grasp_pose(q, 0.0, fetch.gripper.open)
@@ -106,6 +108,6 @@ def test_fetch_ik_unloads_the_wrist_through_the_null_space(fetch, tmp_path) -> N
     assert e_p < ik.config.position_tolerance and e_r < ik.config.orientation_tolerance
     np.testing.assert_allclose(ik.grasp_pose(q_free, 0.0, fetch.gripper.open)[:3, 3], T[:3, 3], atol=ik.config.position_tolerance)
     # ... while the worst arm joint's gravity share drops by at least 0.02 (half a N m at the wrist; the hinge
-    # only pulls above 40 % here, so a drop is all it can promise).
+    # only pulls above 20 % here, so a drop is all it can promise).
     unloaded = float(np.abs(gravity._load(ik.full_q(q_free, 0.0, fetch.gripper.open))).max())
     assert unloaded < loaded - 0.02, (loaded, unloaded)
