@@ -115,7 +115,7 @@ def test_depth_cost_tells_a_turning_door_from_a_slide() -> None:
     """A door turned to 60 deg: posed by its hinge its points stay on the leaf (cost near 0); posed
     by the slide that matches its first degrees (the free edge coming towards the camera) they end
     in free space. No texture is involved: depth alone decides (funrec.parts.joint_type)."""
-    from funrec.parts.depth_states import depth_cost
+    from funrec.parts.depth_states import depth_fit
 
     F = 30
     true = np.deg2rad(60.0) * np.clip(np.arange(F) / 24.0, 0.0, 1.0)
@@ -123,8 +123,8 @@ def test_depth_cost_tells_a_turning_door_from_a_slide() -> None:
     trajectory = SimpleNamespace(T_world_camera=np.tile(np.eye(4), (F, 1, 1)))
     rng = np.random.default_rng(1)
     p_world = HINGE + np.stack([rng.uniform(0.05, WIDTH, 60), rng.uniform(-HALF_HEIGHT, HALF_HEIGHT, 60), np.zeros(60)], -1)
-    revolute = depth_cost(capture, trajectory, "revolute", AXIS, HINGE, p_world)
-    slide = depth_cost(capture, trajectory, "prismatic", np.array([0.0, 0.0, -1.0]), None, p_world)
+    revolute = depth_fit(capture, trajectory, "revolute", AXIS, HINGE, p_world)[1]
+    slide = depth_fit(capture, trajectory, "prismatic", np.array([0.0, 0.0, -1.0]), None, p_world)[1]
     # Mean point cost: 0 on the surface, 1 seen through, 0.3 hidden. The hinge explains every
     # frame to the depth noise-free tolerance (measured 0.02); the slide leaves the far part of
     # the leaf in the air once the door turned by more than ~10 deg (measured 0.22).

@@ -6,7 +6,7 @@ part from. Depth needs no texture. The surface of a door or a sliding panel that
 (free-space violations, :mod:`funrec.parts.scene_change`) lie on the part at its canonical state.
 Their dominant plane is the part's front; joints are hypothesised from it (a turn about each edge
 of its extent, a slide along its normal or along either in-plane direction) and each is scored by
-the 1-DoF search of the part's state in every frame's depth (:func:`funrec.parts.depth_states.depth_cost`).
+the 1-DoF search of the part's state in every frame's depth (:func:`funrec.parts.depth_states.depth_fit`).
 The best hypothesis is kept when it explains the depth clearly better than a part that did not
 move. The paper proposes parts with a VLM and tracks them with TAPIP3D; this is the geometric
 stand-in behind the same output, 3D tracks of the part (:func:`proposal_tracks`).
@@ -17,6 +17,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from types import SimpleNamespace
 
 import cv2
 import numpy as np
@@ -26,7 +27,7 @@ from funrec.formats.capture import Capture
 from funrec.geometry.camera import backproject
 from funrec.geometry.joints import joint_transforms
 from funrec.geometry.transforms import invert_transform, transform_points
-from funrec.parts.depth_states import DepthStateConfig, depth_cost, depth_fit, depth_states, point_cost
+from funrec.parts.depth_states import DepthStateConfig, depth_fit, depth_states, point_cost
 from funrec.parts.point_tracks import PointTracks
 from funrec.typed import BoolArray, FloatArray, IntArray
 
@@ -138,7 +139,7 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
     # memory once (a few MB), not decoded again per hypothesis from the full images.
     coarse, coarse_poses, search = _coarse(views, config)
     hypothesis_points = points[np.linspace(0, len(points) - 1, min(len(points), config.hypothesis_points)).astype(int)]
-    static = depth_cost(coarse, coarse_poses, "prismatic", normal, None, hypothesis_points, _held_still(search))
+    static = depth_fit(coarse, coarse_poses, "prismatic", normal, None, hypothesis_points, _held_still(search))[1]
     # frames to test what arrived on: evenly spread over the second half, where the part stands moved
     F = len(capture)
     arrived = _arrived(views, np.unique(np.linspace(F // 2, F - 1, config.arrival_frames).astype(int)))
@@ -199,20 +200,33 @@ def proposal_tracks(proposal: DepthProposal, capture: Capture, trajectory: Camer
     return PointTracks(p_world=np.where(visible[..., None], p_world, np.nan), uv=uv, visible=visible)
 
 
-def _coarse(views: _Views, config: DepthProposalConfig) -> tuple[object, CameraTrajectory, DepthStateConfig]:
-    """A capture-like view of every ``score_stride``-th frame's work-resolution depth, its poses,
-    and the search settings for it (speeds per kept frame)."""
-    from types import SimpleNamespace
+@dataclass(frozen=True)
+class _DepthFrames:
+    """Depth images held in memory, read like a capture by the state search (len, depth_m, intrinsics.K)."""
 
-    frames = list(range(0, len(views.capture), config.score_stride))
-    depth = [np.where(views.view(f)[1], views.view(f)[0], 0.0) for f in frames]
-    span = type("CoarseDepth", (), {"__len__": lambda self: len(depth), "depth_m": lambda self, i: depth[i],
-                                    "intrinsics": SimpleNamespace(K=views.K)})()
-    poses = SimpleNamespace(T_world_camera=views.trajectory.T_world_camera[frames])
+    depth: tuple[FloatArray, ...]
+    """(h, w) depth of each frame, metres; 0 = no reading."""
+    intrinsics: SimpleNamespace
+    """``K`` (3, 3) of the images' resolution."""
+
+    def __len__(self) -> int:
+        return len(self.depth)
+
+    def depth_m(self, frame: int) -> FloatArray:
+        return self.depth[frame]
+
+
+def _coarse(views: _Views, config: DepthProposalConfig) -> tuple[_DepthFrames, CameraTrajectory, DepthStateConfig]:
+    """Every ``score_stride``-th frame's work-resolution depth (hand pixels removed), its poses, and
+    the search settings for it (speeds per kept frame)."""
+    frames = np.arange(0, len(views.capture), config.score_stride)
+    depth = tuple(np.where(views.view(f)[1], views.view(f)[0], 0.0) for f in frames)
+    T = views.trajectory.T_world_camera[frames]
+    poses = CameraTrajectory(T, np.zeros(0, np.int64), np.ones(len(frames), dtype=bool))
     stride = config.score_stride
     search = replace(config.search, max_speed_rad=config.search.max_speed_rad * stride,
                      max_speed_m=config.search.max_speed_m * stride)
-    return span, poses, search  # type: ignore[return-value]
+    return _DepthFrames(depth, SimpleNamespace(K=views.K)), poses, search
 
 
 def _held_still(config: DepthStateConfig) -> DepthStateConfig:
@@ -232,6 +246,8 @@ class _Views:
         K[:2, :] /= self.step
         self.K = K
         self._cache: dict[int, tuple[FloatArray, BoolArray, FloatArray]] = {}
+        self.depth0_m = capture.depth_m(0)
+        """Frame 0's full-resolution depth: every hypothesis moves the arrived surfaces back onto it."""
 
     def view(self, frame: int) -> tuple[FloatArray, BoolArray, FloatArray]:
         """(depth, valid, near): depth (h, w), valid pixels, and the 3x3 min-filtered depth (a point
@@ -297,13 +313,12 @@ def _return_cost(arrived: list[tuple[int, FloatArray]], joint_type: str, axis: F
     surface that left, but not the leaf standing out in front of the cabinet."""
     costs, weights = [], []
     T_camera0_world = invert_transform(views.trajectory.T_world_camera[0])
-    depth0 = views.capture.depth_m(0)
     for frame, p_world in arrived:
         if len(p_world) == 0:
             continue
         T = joint_transforms(joint_type, axis, pivot, states[frame : frame + 1])[0]
         x = transform_points(invert_transform(T), p_world)
-        costs.append(point_cost(depth0, views.capture.intrinsics.K, T_camera0_world, x, config))
+        costs.append(point_cost(views.depth0_m, views.capture.intrinsics.K, T_camera0_world, x, config))
         weights.append(len(p_world))
     return float(np.average(costs, weights=weights)) if costs else 0.0
 

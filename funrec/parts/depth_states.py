@@ -123,30 +123,6 @@ def depth_states(
     return states
 
 
-def depth_cost(
-    capture: Capture,
-    trajectory: CameraTrajectory,
-    joint_type: str,
-    axis_world: FloatArray,
-    pivot_world: FloatArray | None,
-    p_world: FloatArray,
-    config: DepthStateConfig = DepthStateConfig(),  # noqa: B008 (frozen, immutable default)
-) -> float:
-    """How well a joint hypothesis explains the depth of a capture, from depth alone.
-
-    The same search as :func:`depth_states` without tracked states: the mean point cost (0: every
-    posed point on the observed surface; 1: every point seen through) of the best state chain,
-    averaged over the frames that see the part. Two joint types fitted to the same part can be
-    compared by it without any texture: a door turned by a slide leaves its points in the air.
-
-    Args: as :func:`depth_states` (``p_world`` (M, 3) canonical part points, world frame).
-
-    Returns:
-        Mean cost in [0, 1]; NaN when no frame sees ``config.min_points`` part points.
-    """
-    return depth_fit(capture, trajectory, joint_type, axis_world, pivot_world, p_world, config)[1]
-
-
 def depth_fit(
     capture: Capture,
     trajectory: CameraTrajectory,
@@ -156,7 +132,19 @@ def depth_fit(
     p_world: FloatArray,
     config: DepthStateConfig = DepthStateConfig(),  # noqa: B008 (frozen, immutable default)
 ) -> tuple[FloatArray, float]:
-    """(F,) states of every frame from depth alone, and their mean cost (see :func:`depth_cost`)."""
+    """How well a joint hypothesis explains the depth of a capture, from depth alone.
+
+    The same search as :func:`depth_states` without tracked states. The mean point cost (0: every
+    posed point on the observed surface; 1: every point seen through) of the best state chain,
+    averaged over the frames that see the part, compares two joint types fitted to the same part
+    without any texture: a door turned by a slide leaves its points in the air.
+
+    Args: as :func:`depth_states` (``p_world`` (M, 3) canonical part points, world frame).
+
+    Returns:
+        (F,) state of every frame, and the mean cost in [0, 1] (NaN when no frame sees
+        ``config.min_points`` part points).
+    """
     none = np.zeros(0, np.int64)
     return _search(capture, trajectory, joint_type, axis_world, pivot_world, p_world, none, np.zeros(0),
                    np.zeros(0, bool), config, None)
@@ -282,4 +270,4 @@ def _min_cost_chain(cost: FloatArray, max_steps: int, change_cost: float) -> Int
     return path
 
 
-__all__ = ["DepthStateConfig", "depth_cost", "depth_fit", "depth_states", "oriented_normals", "point_cost"]
+__all__ = ["DepthStateConfig", "depth_fit", "depth_states", "oriented_normals", "point_cost"]

@@ -4,7 +4,7 @@ the depth images, when the tracks alone cannot tell a slide from a turn.
 Point tracks on a plain door die a few degrees into the opening, and for those first degrees a
 turning door is also a straight slide: the tracks' model selection then says prismatic. Depth
 sees the whole opening. Both explanations of the part's tracks are posed over the window by a
-1-DoF search in depth (:func:`funrec.parts.depth_states.depth_cost`); a door turned by a slide
+1-DoF search in depth (:func:`funrec.parts.depth_states.depth_fit`); a door turned by a slide
 leaves its points in free space, and a drawer turned by a hinge does too. The paper's VLM proposes
 the joint type from the video; this is the geometric stand-in for that proposal.
 """
@@ -19,7 +19,7 @@ import numpy as np
 from funrec.camera.tracking import CameraTrajectory
 from funrec.formats.capture import Capture
 from funrec.parts.articulation import ArticulationConfig, PartEstimate, refit_joint
-from funrec.parts.depth_states import DepthStateConfig, depth_cost
+from funrec.parts.depth_states import DepthStateConfig, depth_fit
 from funrec.parts.fragment_tracks import sub_capture, sub_trajectory
 from funrec.parts.part_merge import canonical_part_points
 from funrec.parts.point_tracks import PointTracks
@@ -75,8 +75,8 @@ def choose_joint_type(part: PartEstimate, tracks: PointTracks, capture: Capture,
         x = canonical_part_points(candidate, tracks)
         if len(x) > config.max_points:
             x = x[np.linspace(0, len(x) - 1, config.max_points).astype(int)]
-        costs[candidate.joint_type] = depth_cost(frames, poses, candidate.joint_type, candidate.axis_world,
-                                                 candidate.pivot_world, x, config.depth)
+        costs[candidate.joint_type] = depth_fit(frames, poses, candidate.joint_type, candidate.axis_world,
+                                                 candidate.pivot_world, x, config.depth)[1]
     logger.info("joint type in depth: tracks chose %s; mean depth cost revolute %.3f, prismatic %.3f",
                 part.joint_type, costs["revolute"], costs["prismatic"])
     if np.isfinite(costs[other_type]) and costs[other_type] < (1.0 - config.min_gain) * costs[part.joint_type]:
