@@ -122,15 +122,21 @@ def test_without_pose_graph_no_loop_is_closed(scenes, monkeypatch):
     assert rmse < 0.01 and rot_deg < 0.5, (rmse, rot_deg)
 
 
-def test_relocalises_after_losing_every_track(scenes, tmp_path):
-    """Three black frames (lens covered) lose every KLT track; ORB relocalisation against the
-    stored keyframes must bring the camera back without a jump."""
-    scene, root = scenes["plain"]
+def _covered(scene: Scene, root: Path, tmp_path: Path) -> Path:
+    """The scene with frames 14-16 black (lens covered; depth still recorded)."""
     covered = tmp_path / "covered"
     shutil.copytree(root, covered)
     for i in (14, 15, 16):
         cv2.imwrite(str(covered / "rgb" / f"{i:06d}.png"), np.zeros((scene.height, scene.width, 3), np.uint8))
-    trajectory = track_camera(load_capture(covered))
+    return covered
+
+
+def test_relocalises_after_losing_every_track(scenes, tmp_path):
+    """Three black frames (lens covered) lose every KLT track, and their depth (a plain wall and
+    door) leaves a slide free, so the depth fallback must refuse them too; ORB relocalisation
+    against the stored keyframes must bring the camera back without a jump."""
+    scene, root = scenes["plain"]
+    trajectory = track_camera(load_capture(_covered(scene, root, tmp_path)))
     assert not trajectory.tracked[14:17].any()
     assert trajectory.tracked[17:].all()
     assert 17 in trajectory.keyframes  # relocalised frames start a new keyframe

@@ -1,0 +1,338 @@
+"""Frame-to-keyframe registration from depth alone: the fallback of camera tracking where corners
+are too few, as on plain painted walls and doors.
+
+Projective point-to-plane ICP (KinectFusion's data association: a source point is matched to the
+keyframe pixel it projects to), coarse to fine, from the pose the feature tracker last had, with a
+Tukey kernel set by the sensor's depth noise so that the moving hand and part do not drag the
+camera. A learned dense matcher (the paper's RoMa) could fill the same signature:
+``register_depth(source, target, T_init) -> DepthFit``.
+
+Written here rather than with Open3D's ICP: its k-d-tree association cost 0.3-0.4 s per frame at
+the density the plain bench scenes need (stride 4, 18k points; a sparser stride 8 slid 1-3 cm
+along walls), and its RGB-D odometry (projective, photometric + depth) drifted 7-180 cm over 14
+frames of the dark bench family (measured, /tmp/prof_odo.py). Projective association is one
+vectorised gather per iteration.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy.ndimage import map_coordinates
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from funrec.camera.features import DepthNoiseModel
+from funrec.geometry.camera import backproject
+from funrec.typed import BoolArray, FloatArray, UInt8Array
+
+
+@dataclass(frozen=True)
+class DepthOdometryConfig:
+    """Settings of :func:`depth_view` and :func:`register_depth`."""
+
+    map_stride: int = 2
+    """The keyframe's vertex and normal maps keep every k-th pixel (320x240 at 640x480)."""
+    levels: tuple[tuple[int, float], ...] = ((8, 0.08), (4, 0.04))
+    """Coarse rounds as (source pixel stride, correspondence distance in metres): the first distance
+    must exceed the motion between two frames that the guess misses (a few cm at 15-30 fps). A
+    final round at stride 4 uses the noise-derived distance."""
+    final_stride: int = 4
+    """Source pixel stride of the final round (19k points at 640x480: sparser strides slid along
+    plain walls, measured)."""
+    photometric_weight: float = 0.2
+    """Weight of a grey-level residual (grey in [0, 1]) against a point-to-plane residual in
+    metres: (depth noise / grey noise)^2 ~ (3 mm / 0.007)^2. Grey edges (a cabinet's outline, a
+    counter's lip) pin the slides along plain walls that point-to-plane ICP leaves free
+    (measured on the dark family's first frame against itself from a 2 cm offset: ICP alone
+    stopped 10-26 mm off, 0.2 returned to 0.0 mm; 0.02 was too weak to help)."""
+    grey_in_final_round: bool = False
+    """Grey levels steer the coarse rounds only: they pin the slides, but on noise-free planes
+    they left the fine round 2.4 mm off where point-to-plane alone ended 0.1 mm off (measured,
+    tests/test_depth_odometry.py). The final round's covariance still counts them."""
+    min_grey_spread: float = 0.01
+    """An image whose usable grey levels spread less than this (standard deviation, 0-1 scale) is
+    flat: no grey-level term (a covered lens; 8-bit noise alone is ~0.004)."""
+    grey_tukey: float = 0.1
+    """Tukey scale of grey-level residuals: a hand or a shadow changes grey by more."""
+    projective_below_m: float = 0.2
+    """Rounds whose correspondence distance is below this use projective association, the
+    others nearest neighbours."""
+    noise_sigmas: float = 3.0
+    """The final round's correspondence distance and the Tukey scale, in standard deviations of
+    the depth noise at the median depth of both views (never below ``min_distance_m``)."""
+    min_distance_m: float = 0.01
+    """Floor of the final correspondence distance, metres."""
+    iterations: int = 10
+    """Gauss-Newton steps per round."""
+    max_edge_ratio: float = 0.05
+    """Neighbouring depths differing by more than this fraction of the depth are a depth edge:
+    no normal there."""
+    min_fitness: float = 0.5
+    """A registration is accepted only when at least this fraction of the frame's usable points
+    meets the keyframe's surface within the final distance: the static scene must dominate the
+    view (the hand and a moving door together cover well under half of a frame in every bench
+    family)."""
+    max_step_m: float = 0.15
+    """... and when it moves the camera at most this far from the guess, metres: a hand-held
+    camera does not move 15 cm in one frame; a larger step is a slide into a wrong minimum."""
+    max_step_rad: float = math.radians(15.0)
+    """... and turns it at most this much from the guess, radians."""
+    max_std_m: float = 0.001
+    """... and when the surfaces and grey edges pin the camera's position to this standard
+    deviation along every direction, metres (sigma^2 A^-1 with the depth noise): a plain wall
+    and door with no grey level (lens covered) measured 1.0-1.6 mm and slid 1.5 cm per frame;
+    registered frames of the dark, plain and lighting families measured at most 0.74 mm."""
+    max_std_rad: float = math.radians(0.05)
+    """... and its orientation to this, radians (those same cases: 0.06 deg against at most
+    0.015 deg)."""
+    min_points: int = 300
+    """A view with fewer usable points at the final stride is not registered."""
+    depth_noise: DepthNoiseModel = DepthNoiseModel()
+    """Sensor noise that sets the final distance and the Tukey kernel."""
+
+
+@dataclass(frozen=True, eq=False)
+class DepthView:
+    """One frame's usable depth as vertex and normal maps, in its camera frame."""
+
+    K: FloatArray
+    """(3, 3) intrinsics of the full-resolution image."""
+    stride: int
+    """Pixel stride of the maps."""
+    p_map: FloatArray
+    """(h, w, 3) point of every kept pixel, NaN where unusable."""
+    n_map: FloatArray
+    """(h, w, 3) unit normal facing the camera, NaN where there is none (edges, holes)."""
+    median_depth_m: float
+    p_tree: FloatArray
+    """(M, 3) points with a normal at the final stride: the targets of correspondences."""
+    n_tree: FloatArray
+    """(M, 3) their normals."""
+    tree: cKDTree
+    """k-d tree over ``p_tree``, built once per keyframe."""
+    intensity: FloatArray
+    """(H, W) grey level in [0, 1], lightly smoothed, full resolution; NaN everywhere when the
+    image is flat."""
+    gradient: FloatArray
+    """(2, H, W) its derivative along u and v, per pixel."""
+
+    def points(self, stride: int) -> tuple[FloatArray, FloatArray]:
+        """(N, 3) usable points at a pixel stride that is a multiple of the map's, and their (N,)
+        grey levels."""
+        step = max(1, stride // self.stride)
+        p = self.p_map[::step, ::step].reshape(-1, 3)
+        grey = self.intensity[:: self.stride * step, :: self.stride * step][: self.p_map[::step].shape[0],
+                                                                           : self.p_map[:, ::step].shape[1]]
+        valid = np.isfinite(p[:, 2])
+        return p[valid], grey.reshape(-1)[valid]
+
+
+def _normals(p_map: FloatArray, max_edge_ratio: float) -> FloatArray:
+    """Normals from central differences of the vertex map; NaN at holes and depth edges."""
+    n = np.full(p_map.shape, np.nan)
+    dx = p_map[1:-1, 2:] - p_map[1:-1, :-2]
+    dy = p_map[2:, 1:-1] - p_map[:-2, 1:-1]
+    centre = p_map[1:-1, 1:-1]
+    z = centre[..., 2]
+    with np.errstate(invalid="ignore"):
+        smooth = (np.abs(dx[..., 2]) < 2 * max_edge_ratio * z) & (np.abs(dy[..., 2]) < 2 * max_edge_ratio * z)
+    cross = np.cross(dx, dy)
+    norm = np.linalg.norm(cross, axis=-1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        unit = cross / norm
+        facing = np.sum(unit * centre, axis=-1, keepdims=True) > 0
+    unit = np.where(facing, -unit, unit)
+    n[1:-1, 1:-1] = np.where((smooth & (norm[..., 0] > 0))[..., None], unit, np.nan)
+    return n
+
+
+def depth_view(gray: UInt8Array, depth_m: FloatArray, usable: BoolArray, K: FloatArray,
+               config: DepthOdometryConfig = DepthOdometryConfig()) -> DepthView | None:  # noqa: B008
+    """A frame's depth as vertex and normal maps and its grey level; None when fewer than
+    ``config.min_points`` usable points remain at the final stride.
+
+    Args:
+        gray: (H, W) grey image.
+        depth_m: (H, W) depth in metres, 0 where missing.
+        usable: (H, W) True where a pixel may be used (no hand, no moving part).
+        K: (3, 3) intrinsics.
+    """
+    s = config.map_stride
+    depth = np.where(usable, depth_m, 0.0)[::s, ::s]
+    K_map = np.array(K, dtype=np.float64)
+    K_map[:2] /= s  # map pixel (u/s, v/s) is image pixel (u, v)
+    p_map = backproject(depth, K_map).reshape(*depth.shape, 3)
+    n_map = _normals(p_map, config.max_edge_ratio)
+    step = max(1, config.final_stride // s)
+    p_tree, n_tree = p_map[::step, ::step].reshape(-1, 3), n_map[::step, ::step].reshape(-1, 3)
+    keep = np.isfinite(n_tree[:, 0]) & np.isfinite(p_tree[:, 2])
+    if keep.sum() < config.min_points:
+        return None
+    # A flat image (lens covered, black frame) has no grey-level term at all. Grey levels are not
+    # standardised per frame: the arm entering the view shifts a frame's mean and spread, and
+    # standardising then cost the dark family 1-8 cm of drift (measured).
+    grey = gray.astype(np.float32) / 255.0
+    flat = not usable.any() or float(grey[usable].std()) < config.min_grey_spread
+    intensity = np.full_like(grey, np.nan) if flat else cv2.GaussianBlur(grey, (5, 5), 1.0)
+    gradient = np.stack([cv2.Sobel(intensity, cv2.CV_32F, 1, 0, ksize=3) / 8.0,
+                         cv2.Sobel(intensity, cv2.CV_32F, 0, 1, ksize=3) / 8.0])
+    return DepthView(np.asarray(K, dtype=np.float64), s, p_map, n_map, float(np.median(depth[depth > 0])),
+                     p_tree[keep], n_tree[keep], cKDTree(p_tree[keep]), intensity, gradient)
+
+
+@dataclass(frozen=True)
+class DepthFit:
+    """One accepted depth registration."""
+
+    T_target_source: FloatArray
+    """(4, 4) pose of the source camera in the target (keyframe) camera."""
+    fitness: float
+    """Fraction of the source's usable points on the target's surface within ``distance_m``."""
+    rmse_m: float
+    """RMS point-to-plane distance of those points, metres."""
+    distance_m: float
+    """Correspondence distance of the final round, metres."""
+    p_source_matched: FloatArray
+    """(N, 3) source points on the target's surface, in the source camera frame (for the pose
+    graph's information matrix)."""
+
+
+def _associate(p_source: FloatArray, target: DepthView, T: FloatArray, distance_m: float,
+               nearest: bool) -> tuple[FloatArray, FloatArray, FloatArray, BoolArray]:
+    """Source points in the target frame, their partners in the target, the partners' normals, and
+    which have a partner within ``distance_m``: the nearest target point (k-d tree) when
+    ``nearest``, else the target pixel the point projects to (KinectFusion's projective
+    association, ~10x cheaper)."""
+    p = p_source @ T[:3, :3].T + T[:3, 3]
+    if nearest:
+        _, index = target.tree.query(p, k=1, distance_upper_bound=distance_m)
+        has = index < len(target.p_tree)
+        index = np.where(has, index, 0)
+        return p, target.p_tree[index], target.n_tree[index], has
+    h, w = target.p_map.shape[:2]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = np.rint((target.K[0, 0] * p[:, 0] / p[:, 2] + target.K[0, 2]) / target.stride)
+        v = np.rint((target.K[1, 1] * p[:, 1] / p[:, 2] + target.K[1, 2]) / target.stride)
+    inside = (p[:, 2] > 0) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    ui, vi = np.where(inside, u, 0).astype(np.int64), np.where(inside, v, 0).astype(np.int64)
+    q, n = target.p_map[vi, ui], target.n_map[vi, ui]
+    has = inside & np.isfinite(n[:, 0]) & np.isfinite(q[:, 2])
+    with np.errstate(invalid="ignore"):
+        has &= np.linalg.norm(p - q, axis=1) < distance_m
+    return p, q, n, has
+
+
+def _photometric(p: FloatArray, grey_source: FloatArray, target: DepthView) -> tuple[FloatArray, FloatArray]:
+    """Grey-level residuals I_target(project(p)) - I_source and their gradients d r / d p (N, 3);
+    zero for points that project outside the target image."""
+    K = target.K
+    h, w = target.intensity.shape
+    z = np.maximum(p[:, 2], 1e-6)
+    u, v = K[0, 0] * p[:, 0] / z + K[0, 2], K[1, 1] * p[:, 1] / z + K[1, 2]
+    inside = (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
+    at = np.stack([v, u])
+    r = map_coordinates(target.intensity, at, order=1, mode="nearest") - grey_source
+    gu = map_coordinates(target.gradient[0], at, order=1, mode="nearest")
+    gv = map_coordinates(target.gradient[1], at, order=1, mode="nearest")
+    grad = np.stack([gu * K[0, 0] / z, gv * K[1, 1] / z, -(gu * K[0, 0] * p[:, 0] + gv * K[1, 1] * p[:, 1]) / z**2], axis=1)
+    return np.where(inside, r, 0.0), np.where(inside[:, None], grad, 0.0)
+
+
+def _tukey(r: FloatArray, k: float) -> FloatArray:
+    return np.where(np.abs(r) < k, (1.0 - (r / k) ** 2) ** 2, 0.0)
+
+
+def _gauss_newton(p_source: FloatArray, grey_source: FloatArray, target: DepthView, T: FloatArray, distance_m: float,
+                  iterations: int, config: DepthOdometryConfig, grey_steps: bool) -> tuple[FloatArray, FloatArray] | None:
+    """Gauss-Newton steps on point-to-plane distances (Tukey kernel of scale distance/2) plus,
+    weighted by ``config.photometric_weight``, grey-level differences of the points whose surface
+    correspondence holds (in the steps only when ``grey_steps``). Returns the pose and the last
+    step's (6, 6) normal matrix of both terms (rotation vector, translation; point-to-plane units),
+    or None when fewer than 6 correspondences remain."""
+    k = distance_m / 2.0
+    for _ in range(iterations):
+        p, q, n, has = _associate(p_source, target, T, distance_m, distance_m > config.projective_below_m)
+        r = np.einsum("ij,ij->i", p - q, n)
+        weight = np.where(has, _tukey(r, k), 0.0)
+        use = weight > 0
+        if use.sum() < 6:
+            return None
+        p, n, r, weight, grey = p[use], n[use], r[use], weight[use], grey_source[use]
+        J = np.hstack([np.cross(p, n), n])  # d r / d (rotation vector, translation), left increment
+        A = (J * weight[:, None]).T @ J
+        b = (J * weight[:, None]).T @ r
+        if config.photometric_weight > 0 and np.isfinite(target.intensity[0, 0]) and np.isfinite(grey).all():
+            r_c, g = _photometric(p, grey, target)
+            w_c = _tukey(r_c, config.grey_tukey) * config.photometric_weight
+            J_c = np.hstack([np.cross(p, g), g])
+            A_grey = (J_c * w_c[:, None]).T @ J_c
+            if grey_steps:
+                A, b = A + A_grey, b + (J_c * w_c[:, None]).T @ r_c
+        else:
+            A_grey = np.zeros((6, 6))
+        try:
+            x = -np.linalg.solve(A, b)
+        except np.linalg.LinAlgError:
+            return None
+        step = np.eye(4)
+        step[:3, :3] = Rotation.from_rotvec(x[:3]).as_matrix()
+        step[:3, 3] = x[3:]
+        T = step @ T
+        if np.linalg.norm(x[3:]) < 1e-4 and np.linalg.norm(x[:3]) < 1e-4:  # 0.1 mm, 0.1 mrad
+            break
+    return T, A if grey_steps else A + A_grey
+
+
+def _step(T_a: FloatArray, T_b: FloatArray) -> tuple[float, float]:
+    """(translation metres, rotation radians) of T_a^-1 T_b."""
+    T = np.linalg.solve(T_a, T_b)
+    cos = float(np.clip((np.trace(T[:3, :3]) - 1.0) / 2.0, -1.0, 1.0))
+    return float(np.linalg.norm(T[:3, 3])), math.acos(cos)
+
+
+def register_depth(source: DepthView, target: DepthView, T_init: FloatArray,
+                   config: DepthOdometryConfig = DepthOdometryConfig()) -> DepthFit | None:  # noqa: B008
+    """T_target_source by coarse-to-fine projective point-to-plane ICP from ``T_init``; None when
+    it is not trustworthy (too little of the frame on the keyframe's surface at the noise-derived
+    distance, or a jump from the guess)."""
+    noise = config.depth_noise
+    sigma = math.hypot(*(noise.base_m + noise.quadratic_per_m * (z - noise.offset_m) ** 2
+                         for z in (source.median_depth_m, target.median_depth_m)))
+    final = max(config.min_distance_m, config.noise_sigmas * sigma)
+    T = np.asarray(T_init, dtype=np.float64)
+    rounds = [(s, d) for s, d in config.levels if d > final] + [(config.final_stride, final)]
+    for k, (stride, distance) in enumerate(rounds):
+        final_round = k == len(rounds) - 1
+        result = _gauss_newton(*source.points(stride), target, T, distance, config.iterations, config,
+                               grey_steps=not final_round or config.grey_in_final_round)
+        if result is None:
+            return None
+        T, A = result
+    # How well the surfaces (and grey edges) pin each direction: the pose covariance of residuals
+    # with the depth noise, sigma^2 A^-1. A plain wall with a door leaves a slide along them free.
+    try:
+        covariance = (final / config.noise_sigmas) ** 2 * np.linalg.inv(A)
+    except np.linalg.LinAlgError:
+        return None
+    std_rad = math.sqrt(max(np.linalg.eigvalsh(covariance[:3, :3]).max(), 0.0))
+    std_m = math.sqrt(max(np.linalg.eigvalsh(covariance[3:, 3:]).max(), 0.0))
+    step_m, step_rad = _step(np.asarray(T_init), T)
+    if (step_m > config.max_step_m or step_rad > config.max_step_rad or std_m > config.max_std_m
+            or std_rad > config.max_std_rad):
+        return None
+    p_source, _ = source.points(config.final_stride)
+    p, q, n, has = _associate(p_source, target, T, final, nearest=False)
+    r = np.full(len(p), np.inf)
+    r[has] = np.abs(np.einsum("ij,ij->i", p[has] - q[has], n[has]))
+    on_surface = r < final
+    fitness = float(on_surface.mean())
+    if fitness < config.min_fitness:
+        return None
+    return DepthFit(T, fitness, float(np.sqrt(np.mean(r[on_surface] ** 2))), final, p_source[on_surface])
+
+
+__all__ = ["DepthFit", "DepthOdometryConfig", "DepthView", "depth_view", "register_depth"]
