@@ -84,6 +84,9 @@ class PlacementProblem:
     """Per base pose, footprints of the moving part over the states of its stretch and of the next one."""
     start_part: tuple[Polygon, ...]
     """Footprints of the moving part at the start state (for the arm at home)."""
+    reach_yaw: float = 0.0
+    """Direction the arm reaches in, relative to the base's x, rad (``RobotGeometry.reach_yaw``): the facing
+    cost turns it towards the targets."""
 
     @property
     def bases(self) -> int:
@@ -211,7 +214,7 @@ def _base_terms(problem: PlacementProblem, b: int, pose: ca.MX, config: Placemen
     R = _rotation(pose[2])
     shoulder_xy = pose[:2] + ca.mtimes(R, ca.DM(problem.p_base_shoulder[:2]))
     r_min, r_max, r_mid = (problem.reach * f for f in (config.r_min_fraction, config.r_max_fraction, config.r_mid_fraction))
-    heading = ca.vertcat(ca.cos(pose[2]), ca.sin(pose[2]))
+    heading = ca.vertcat(ca.cos(pose[2] + problem.reach_yaw), ca.sin(pose[2] + problem.reach_yaw))
     dxy = ca.DM(targets[:, :2].T) - ca.repmat(shoulder_xy, 1, len(targets))  # (2, K)
     dz2 = ca.DM((targets[:, 2] - problem.p_base_shoulder[2]) ** 2).T  # (1, K)
     horizontal2 = ca.sum1(dxy**2)
@@ -246,7 +249,7 @@ def _grid(problem: PlacementProblem, b: int, config: PlacementConfig) -> FloatAr
         for angle in angles:
             xy = centroid + radius * np.array([np.cos(angle), np.sin(angle)])
             for offset in config.grid_yaw_offsets:
-                yaw = angle + np.pi + offset
+                yaw = angle + np.pi + offset - problem.reach_yaw
                 pose = np.where(problem.base_free, [xy[0], xy[1], yaw], problem.base_fixed)
                 guesses.append(pose)
     return np.unique(np.round(np.array(guesses), 9), axis=0)
