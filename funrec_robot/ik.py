@@ -261,7 +261,7 @@ class WholeBodyIK:
         # A leader of coupled joints (a telescoping arm's stages) moves the hand by the sum of their motions:
         # its margin is the same room for the hand, so the leader's share of it.
         for k, name in enumerate(robot.joint_names):
-            stages = 1.0 + sum(abs(r) for leader, r in robot.couplings.values() if leader == name)
+            stages = robot.stages(name)
             if stages > 1.0:
                 qadr = self.indices.qpos[k]
                 position_limit.lower[qadr] -= config.limit_margin * (1.0 - 1.0 / stages)

@@ -192,6 +192,11 @@ class RobotDescription:
         object.__setattr__(self, "q_postures", postures)
         object.__setattr__(self, "T_ee_grasp", T_ee_grasp)
 
+    def stages(self, joint: str) -> float:
+        """The joint's motion together with that of the joints coupled to it, per unit of its own (1 + the
+        followers' ratios): a telescoping arm's leading stage moves the hand four times as far as itself."""
+        return 1.0 + sum(abs(ratio) for leader, ratio in self.couplings.values() if leader == joint)
+
     @property
     def joint_names(self) -> tuple[str, ...]:
         """Planning joint names: base joints, then arm joints."""

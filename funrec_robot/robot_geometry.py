@@ -12,6 +12,7 @@ import mujoco
 import numpy as np
 
 from funrec.typed import FloatArray
+from funrec_robot.ik import IKConfig
 from funrec_robot.robot import RobotDescription
 from funrec_robot.scene import box_corners, geom_boxes, subtree_bodies
 from funrec_robot.sim_model import RobotIndices, apply_couplings, build_mujoco_model, reset_to_home, robot_indices
@@ -166,7 +167,7 @@ def _shoulder_reach(
     """Shoulder (anchor of the second arm joint), reach and the direction the arm reaches in. The reach is the
     anchor-to-anchor length from the shoulder to the wrist; with a slide between them (a telescoping arm), it is
     the straight distance from the shoulder with the slide retracted to the wrist with it extended (with the joints
-    coupled to it), and the arm reaches along the slide. ``data`` is left at the pose it came in."""
+    coupled to it) as far as the whole-body IK moves it, and the arm reaches along the slide. ``data`` is left at the pose it came in."""
     k0 = len(robot.base_joints)
     slides = [k for k in range(1, len(arm) - 1) if model.jnt_type[arm[k]] == mujoco.mjtJoint.mjJNT_SLIDE]
     if not slides:
@@ -174,9 +175,11 @@ def _shoulder_reach(
         return anchors[1].copy(), float(np.sum(np.linalg.norm(np.diff(anchors[1:-1], axis=0), axis=1))), 0.0
     qpos = data.qpos.copy()
     ends = []
-    for limits in (robot.q_min, robot.q_max):
+    for side, limits in ((1.0, robot.q_min), (-1.0, robot.q_max)):
         for k in slides:
-            data.qpos[indices.qpos[k0 + k]] = limits[k0 + k]
+            # the travel the whole-body IK uses: its limit margin inside the limits, the leader's share of it
+            margin = IKConfig().limit_margin / robot.stages(robot.arm_joints[k])
+            data.qpos[indices.qpos[k0 + k]] = limits[k0 + k] + side * margin
         apply_couplings(indices, data.qpos)
         mujoco.mj_kinematics(model, data)
         ends.append((data.xanchor[arm[1]].copy(), data.xanchor[arm[-2]].copy()))
