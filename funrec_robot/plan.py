@@ -100,6 +100,7 @@ def _placement_problem(
         sweep=tuple(sweeps),
         start_part=part_sweep_footprint(model, joint, [states[0]], z_band),
         reach_yaw=geometry.reach_yaw,
+        reach_min=geometry.reach_min,
     )
 
 
