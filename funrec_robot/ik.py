@@ -288,9 +288,9 @@ class WholeBodyIK:
         model = self.model
         qpos_to_dof = {int(model.jnt_qposadr[j]): int(model.jnt_dofadr[j]) for j in range(model.njnt)}
         out = []
-        for f, l, r in zip(self.indices.follower_qpos, self.indices.leader_qpos, self.indices.follower_ratio):
-            if qpos_to_dof[int(l)] in planning:
-                out.append((qpos_to_dof[int(f)], qpos_to_dof[int(l)], float(r)))
+        for follower, leader, ratio in zip(self.indices.follower_qpos, self.indices.leader_qpos, self.indices.follower_ratio):
+            if qpos_to_dof[int(leader)] in planning:
+                out.append((qpos_to_dof[int(follower)], qpos_to_dof[int(leader)], float(ratio)))
         return out
 
     def _collision_pairs(

@@ -31,11 +31,15 @@ def models_folder(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv(MODELS_ENV, str(MODELS))
 
 
+def _loaded(name: str):
+    os.environ.setdefault(MODELS_ENV, str(MODELS))
+    robot = load_robot(ROBOTS / f"{name}.yaml")
+    return robot, measure_robot(robot)
+
+
 @pytest.fixture(scope="module")
 def tiago():
-    os.environ.setdefault(MODELS_ENV, str(MODELS))
-    robot = load_robot(ROBOTS / "tiago.yaml")
-    return robot, measure_robot(robot)
+    return _loaded("tiago")
 
 
 def test_tiago_is_a_differential_planar_base_with_a_torso_lift(tiago) -> None:
@@ -100,9 +104,7 @@ def test_models_scheme_needs_the_models_folder(tmp_path, monkeypatch) -> None:
 
 @pytest.fixture(scope="module")
 def stretch():
-    os.environ.setdefault(MODELS_ENV, str(MODELS))
-    robot = load_robot(ROBOTS / "stretch3.yaml")
-    return robot, measure_robot(robot)
+    return _loaded("stretch3")
 
 
 def test_stretch_plans_its_four_arm_stages_as_one_joint(stretch) -> None:
