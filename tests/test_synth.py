@@ -244,7 +244,7 @@ def test_generate_suite_skips_complete_sequences(
 
     calls: list[str] = []
     monkeypatch.setitem(suite.SUITES, "unit", lambda: (tiny_spec(0), tiny_spec(4)))
-    monkeypatch.setattr(suite, "generate_sequence", lambda spec, out, progress=None: calls.append(spec.name))
+    monkeypatch.setattr(suite, "generate_sequence", lambda spec, out, progress=None, scenes_only=False: calls.append(spec.name))
     paths = generate_suite(tiny_capture.parent, "unit")
     assert calls == ["tiny_04"] and paths == [tiny_capture, tiny_capture.parent / "tiny_04"]
     (tmp_path / "tiny_00").mkdir()
