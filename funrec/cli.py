@@ -134,7 +134,9 @@ def _cmd_synth(args: argparse.Namespace) -> int:
         print(f"capture written to {path} (ground truth in {path / 'gt'}; {time.perf_counter() - start:.0f} s)")
         return 0
     with progress_bar(f"suite {args.suite}") as progress:
-        paths = synth.generate_suite(args.output, suite=args.suite, only=args.only or None, progress=progress)
+        paths = synth.generate_suite(
+            args.output, suite=args.suite, only=args.only or None, progress=progress, scenes_only=args.scenes_only
+        )
     print(f"{len(paths)} sequences in {args.output} ({time.perf_counter() - start:.0f} s)")
     return 0
 
@@ -371,6 +373,12 @@ def _add_synth(sub: Any, selected: bool) -> None:
         "'geometry', 'person', 'assets' = Meta-World objects), 'families' (all of them) or 'smoke' (a few short ones; default)",
     )
     p.add_argument("--only", nargs="+", metavar="NAME", help="generate only these sequences of the suite")
+    p.add_argument(
+        "--scenes-only",
+        action="store_true",
+        help="write only each sequence's gt/ scene (scene.xml, textures, camera poses, gt.json; no frames, masks or "
+        "points): the true scenes `funrec-robot bench` plans in, in seconds",
+    )
     p.add_argument("--tiny", action="store_true", help="instead of a suite, one tiny low-resolution sequence")
     p.add_argument("--seed", type=int, default=0, help="seed of the --tiny sequence (default: 0)")
     p.set_defaults(handler=_cmd_synth)

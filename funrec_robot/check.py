@@ -33,7 +33,7 @@ from funrec_robot.controller import Admittance, AdmittanceConfig, ServoModel
 from funrec_robot.plan_file import Plan, release_offset
 from funrec_robot.robot import RobotDescription
 from funrec_robot.scene import bodies_geoms, floor_geoms, geom_boxes, part_geoms, part_joint, subtree_bodies
-from funrec_robot.sim_model import build_mujoco_spec, gripper_position, robot_indices
+from funrec_robot.sim_model import apply_couplings, build_mujoco_spec, gripper_position, robot_indices
 from funrec_robot.video import FrameRecorder, check_camera, write_video
 
 log = logging.getLogger(__name__)
@@ -291,6 +291,7 @@ class _Execution:
         if self.robot.gripper.actuator is None:
             data.qpos[self.indices.gripper_qpos] = plan.gripper_command[0]
         data.qpos[self.qadr] = self.start_state
+        apply_couplings(self.indices, data.qpos)
         data.ctrl[self.indices.actuators] = plan.q[0]
         data.ctrl[self.indices.gripper_actuators] = plan.gripper_command[0]
         data.eq_active[self.equalities] = 0

@@ -23,7 +23,7 @@ from funrec_robot.scene import (
     robot_bodies,
     subtree_bodies,
 )
-from funrec_robot.sim_model import robot_indices
+from funrec_robot.sim_model import apply_couplings, robot_indices
 
 
 class GravityOverload(PlanningError):
@@ -158,6 +158,7 @@ def kinematic_collisions(
         data.qpos[indices.held_qpos] = indices.held_values
         data.qpos[indices.gripper_qpos] = plan.gripper_command[i]
         data.qpos[qadr] = plan.part_state[i]
+        apply_couplings(indices, data.qpos)
         mujoco.mj_forward(model, data)
         T_move = joint_transform(plan.joint_type, plan.axis_world, plan.pivot_world, plan.part_state[i] - plan.start_state)
         p_handle = T_move[:3, :3] @ p_contact0 + T_move[:3, 3]

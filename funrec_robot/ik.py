@@ -20,7 +20,7 @@ from funrec.errors import PlanningError
 from funrec.typed import FloatArray, IntArray
 from funrec_robot.robot import RobotDescription
 from funrec_robot.scene import bodies_geoms, floor_geoms, gravity_load, subtree_bodies
-from funrec_robot.sim_model import ROBOT_PREFIX, robot_indices
+from funrec_robot.sim_model import ROBOT_PREFIX, apply_couplings, robot_indices
 
 log = logging.getLogger(__name__)
 
@@ -113,6 +113,23 @@ class HeadingConstraint(mink.Task):
         return J
 
 
+class CouplingConstraint(mink.Task):
+    """Coupled joints as equality constraints of the IK's QP: each follower moves ``ratio`` times as fast as its
+    leader (``RobotDescription.couplings``), so a telescoping arm's stages extend together."""
+
+    def __init__(self, model: mujoco.MjModel, pairs: list[tuple[int, int, float]]) -> None:
+        super().__init__(cost=np.zeros(len(pairs)), gain=1.0)
+        self.J = np.zeros((len(pairs), model.nv))
+        for row, (follower_dof, leader_dof, ratio) in enumerate(pairs):
+            self.J[row, follower_dof], self.J[row, leader_dof] = 1.0, -ratio
+
+    def compute_error(self, configuration: mink.Configuration) -> FloatArray:
+        return np.zeros(self.J.shape[0])
+
+    def compute_jacobian(self, configuration: mink.Configuration) -> FloatArray:
+        return self.J
+
+
 class GravityLoadTask(mink.Task):
     """Keeps arm joints' gravity loads below a share of their effort limits.
 
@@ -202,20 +219,24 @@ class WholeBodyIK:
         self.n_base = len(robot.base_joints)
 
         planning = set(int(d) for d in self.indices.dof)
-        frozen = [d for d in range(model.nv) if d not in planning]
-        self.constraints = [mink.DofFreezingTask(model, dof_indices=frozen)] if frozen else []
+        coupled = self._coupled_dofs(planning)
+        frozen = [d for d in range(model.nv) if d not in planning and d not in {f for f, _, _ in coupled}]
+        coupling: list[mink.Task] = [CouplingConstraint(model, coupled)] if coupled else []
+        self.constraints = ([mink.DofFreezingTask(model, dof_indices=frozen)] if frozen else []) + coupling
         self.rolling_constraints = self.constraints
         self._active = self.constraints
         self.differential = freeze_base
         if freeze_base and set(robot.base_motions) == {"x", "y", "yaw"}:
             dof = dict(zip(robot.base_motions, self.indices.dof))
             still = frozen + [int(dof["x"]), int(dof["y"])]
-            self.constraints = [mink.DofFreezingTask(model, dof_indices=sorted(still))]
+            self.constraints = [mink.DofFreezingTask(model, dof_indices=sorted(still)), *coupling]
             yaw_qpos = int(self.indices.qpos[robot.base_motions.index("yaw")])
             self.rolling_constraints = [*self.rolling_constraints, HeadingConstraint(model, int(dof["x"]), int(dof["y"]), yaw_qpos)]
         elif freeze_base:
             translating = [int(d) for m, d in zip(robot.base_motions, self.indices.dof) if m in ("x", "y")]
-            self.constraints = self.rolling_constraints = [mink.DofFreezingTask(model, dof_indices=sorted(frozen + translating))]
+            self.constraints = self.rolling_constraints = [
+                mink.DofFreezingTask(model, dof_indices=sorted(frozen + translating)), *coupling
+            ]
         self.frame_task = mink.FrameTask(
             self.indices.grasp_site_name, "site", position_cost=config.position_cost, orientation_cost=config.orientation_cost
         )
@@ -237,6 +258,14 @@ class WholeBodyIK:
         others = np.setdiff1d(np.arange(model.nq), self.indices.qpos)
         position_limit.lower[others] = -mujoco.mjMAXVAL
         position_limit.upper[others] = mujoco.mjMAXVAL
+        # A leader of coupled joints (a telescoping arm's stages) moves the hand by the sum of their motions:
+        # its margin is the same room for the hand, so the leader's share of it.
+        for k, name in enumerate(robot.joint_names):
+            stages = robot.stages(name)
+            if stages > 1.0:
+                qadr = self.indices.qpos[k]
+                position_limit.lower[qadr] -= config.limit_margin * (1.0 - 1.0 / stages)
+                position_limit.upper[qadr] += config.limit_margin * (1.0 - 1.0 / stages)
         self.limits: list[mink.Limit] = [position_limit, mink.VelocityLimit(model, velocities)]
         groups = self._collision_pairs(
             np.atleast_2d(np.asarray(region_world, dtype=np.float64)), np.asarray(allowed_geoms, dtype=np.int64)
@@ -253,6 +282,16 @@ class WholeBodyIK:
                         collision_detection_distance=config.collision_detection,
                     )
                 )
+
+    def _coupled_dofs(self, planning: set[int]) -> list[tuple[int, int, float]]:
+        """(follower dof, leader dof, ratio) of the coupled joints whose leader the IK moves."""
+        model = self.model
+        qpos_to_dof = {int(model.jnt_qposadr[j]): int(model.jnt_dofadr[j]) for j in range(model.njnt)}
+        out = []
+        for follower, leader, ratio in zip(self.indices.follower_qpos, self.indices.leader_qpos, self.indices.follower_ratio):
+            if qpos_to_dof[int(leader)] in planning:
+                out.append((qpos_to_dof[int(follower)], qpos_to_dof[int(leader)], float(ratio)))
+        return out
 
     def _collision_pairs(
         self, region: FloatArray, allowed: IntArray
@@ -291,6 +330,7 @@ class WholeBodyIK:
         qpos[self.indices.held_qpos] = self.indices.held_values
         qpos[self.indices.gripper_qpos] = fingers
         qpos[self.part_qpos] = part_state
+        apply_couplings(self.indices, qpos)
         return qpos
 
     def grasp_pose(self, q: npt.ArrayLike, part_state: float, fingers: float) -> FloatArray:

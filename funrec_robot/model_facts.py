@@ -89,17 +89,31 @@ class ModelFacts:
 
 
 def robot_spec(
-    model_path: Path, root_body: str, planar_base: bool = False, ee_body: str | None = None, ee_site: str = ""
+    model_path: Path,
+    root_body: str,
+    planar_base: bool = False,
+    ee_body: str | None = None,
+    ee_site: str = "",
+    drop_actuators: tuple[str, ...] = (),
 ) -> mujoco.MjSpec:
     """The model file as an MjSpec, with what a robot YAML adds to it: for ``planar_base`` the root body's free
     joint replaced by slides along its x and y and a hinge about its z (``PLANAR_JOINTS``; the file's
-    keyframes, sized for the free joint, are dropped), and for ``ee_body`` a site ``ee_site`` at that body's
-    origin.
+    keyframes, sized for the free joint, are dropped), for ``ee_body`` a site ``ee_site`` at that body's
+    origin, and the actuators ``drop_actuators`` removed (with the keyframes, sized for them).
 
     Raises:
-        ValueError: MuJoCo cannot load the file, or the root body has no free joint to replace.
+        ValueError: MuJoCo cannot load the file, the root body has no free joint to replace, or an actuator to
+            drop is not in it.
     """
     spec = mujoco.MjSpec.from_file(str(model_path))
+    if drop_actuators:
+        for name in drop_actuators:
+            actuator = spec.actuator(name)
+            if actuator is None:
+                raise ValueError(f"simulation.drop_actuators: no actuator '{name}'")
+            spec.delete(actuator)
+        for key in list(spec.keys):
+            spec.delete(key)
     if planar_base:
         root = spec.body(root_body)
         free = [j for j in root.joints if j.type == mujoco.mjtJoint.mjJNT_FREE]
@@ -150,10 +164,10 @@ def read_model_facts(file: RobotFile) -> ModelFacts:
     """
     model = _compile(file)
     root = _root_body(file, model)
-    if file.planar_base or file.ee_body is not None:
+    if file.planar_base or file.ee_body is not None or file.drop_actuators:
         name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, root)
         try:
-            model = robot_spec(file.model, name, file.planar_base, file.ee_body, file.ee_site).compile()
+            model = robot_spec(file.model, name, file.planar_base, file.ee_body, file.ee_site, file.drop_actuators).compile()
         except ValueError as exc:
             raise RobotDescriptionError(file.path, f"model: {exc}") from exc
         root = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)

@@ -99,6 +99,8 @@ def _placement_problem(
         static=static,
         sweep=tuple(sweeps),
         start_part=part_sweep_footprint(model, joint, [states[0]], z_band),
+        reach_yaw=geometry.reach_yaw,
+        reach_min=geometry.reach_min,
     )
 
 

@@ -19,6 +19,10 @@ Keys (paths are relative to the YAML file, or ``package://<python package>/<path
 - ``ee``: ``site`` and optionally the grasp frame in the site frame: ``approach_axis`` (grasp z,
   default [0, 0, 1]), ``closing_axis`` (grasp y, default [0, 1, 0]), ``offset`` (m, default 0).
 - ``held_joints``: ``{JOINT: position}`` for robot joints the planner never moves (torso, head).
+- ``coupled_joints``: ``{FOLLOWER: LEADER}`` or ``{FOLLOWER: {joint: LEADER, ratio: R}}``: joints that move as
+  ``R`` times another robot joint (the stages of a telescoping arm, fingers geared to one slide). The leader
+  is a base, arm, gripper or held joint; the follower is listed nowhere else. The planner moves followers with
+  their leader; in simulation the model's joint equalities hold them (one is added where the model has none).
 - ``home``: ``{JOINT: position}`` for planning joints; others start at the model's reference (qpos0).
 - ``postures``: optional list of ``{JOINT: position}`` maps, other home postures (unlisted joints as in
   ``home``) that the planner tries in order when the arm in ``home`` cannot hold the gripper at the handle.
@@ -26,7 +30,8 @@ Keys (paths are relative to the YAML file, or ``package://<python package>/<path
   these supply or override the model's values. Every planning joint needs all four in the end.
 - ``simulation``: ``gravity_compensation`` (bool), ``damping`` (joint -> value replacing the
   model's) and ``servos`` (joint -> {kp, kv}): a position servo is added to each joint the model
-  does not actuate, with its force limited to the joint's effort limit.
+  does not actuate, with its force limited to the joint's effort limit; ``drop_actuators``: actuators of
+  the model to leave out (e.g. a tendon actuator of coupled joints, replaced by a servo on the leader).
 
 Every robot joint must be listed exactly once among base, arm, gripper and held joints.
 """
@@ -157,6 +162,11 @@ class RobotDescription:
     """Body the end-effector site was added to, if the model has no site for it."""
     masses: dict[str, float] = field(default_factory=dict)
     """Body -> mass replacing the model file's (inertia scaled alike) in every model built for the robot, kg."""
+    couplings: dict[str, tuple[str, float]] = field(default_factory=dict)
+    """Follower joint -> (leader, ratio): the follower's position is ratio times the leader's; every leader is a
+    base, arm, gripper or held joint (chains of followers are resolved to their first leader)."""
+    drop_actuators: tuple[str, ...] = ()
+    """Actuators of the model left out of every model built for the robot."""
     q_postures: tuple[FloatArray, ...] = ()
     """(nq,) other home configurations the planner tries, in order, when the arm in ``q_home`` cannot hold the
     gripper at the handle within its effort limits (a 7-DoF arm reaches a grasp in many ways; with a heavy
@@ -181,6 +191,11 @@ class RobotDescription:
             q.setflags(write=False)
         object.__setattr__(self, "q_postures", postures)
         object.__setattr__(self, "T_ee_grasp", T_ee_grasp)
+
+    def stages(self, joint: str) -> float:
+        """The joint's motion together with that of the joints coupled to it, per unit of its own (1 + the
+        followers' ratios): a telescoping arm's leading stage moves the hand four times as far as itself."""
+        return 1.0 + sum(abs(ratio) for leader, ratio in self.couplings.values() if leader == joint)
 
     @property
     def joint_names(self) -> tuple[str, ...]:
@@ -241,6 +256,7 @@ def _check_groups(facts: ModelFacts, planning: tuple[str, ...]) -> None:
         "arm_joints": file.arm_joints,
         "gripper.joints": file.gripper_joints,
         "held_joints": tuple(file.held_joints),
+        "coupled_joints": tuple(file.coupled_joints),
     }
     for key, names in groups.items():
         _check_names(file, key, names, facts.joints)
@@ -252,8 +268,10 @@ def _check_groups(facts: ModelFacts, planning: tuple[str, ...]) -> None:
     if unlisted:
         raise RobotDescriptionError(
             file.path,
-            f"robot joints not listed: {format_names(unlisted)}; put each under base, arm_joints, gripper.joints or held_joints",
+            f"robot joints not listed: {format_names(unlisted)}; put each under base, arm_joints, gripper.joints, "
+            "held_joints or coupled_joints",
         )
+    _check_names(file, "coupled_joints (leaders)", (leader for leader, _ in file.coupled_joints.values()), facts.joints)
     multi = [name for name in listed if not facts.is_hinge_or_slide(name)]
     if multi:
         raise RobotDescriptionError(file.path, f"only hinge and slide joints are supported, not {format_names(multi)}")
@@ -269,6 +287,21 @@ def _check_groups(facts: ModelFacts, planning: tuple[str, ...]) -> None:
     )
     for key, keyed in per_joint:
         _check_names(file, key, keyed, facts.joints)
+
+
+def _couplings(file: RobotFile) -> dict[str, tuple[str, float]]:
+    """``coupled_joints`` with each follower tied to its first leader that is no follower (ratios multiplied)."""
+    out = {}
+    for follower in file.coupled_joints:
+        leader, ratio, seen = follower, 1.0, {follower}
+        while leader in file.coupled_joints:
+            leader, step = file.coupled_joints[leader]
+            ratio *= step
+            if leader in seen:
+                raise RobotDescriptionError(file.path, f"coupled_joints: '{follower}' leads back to itself")
+            seen.add(leader)
+        out[follower] = (leader, ratio)
+    return out
 
 
 def _joint_range(facts: ModelFacts, name: str) -> tuple[float, float]:
@@ -417,6 +450,8 @@ def load_robot(path: str | Path) -> RobotDescription:
         base_height=file.base_height,
         ee_body=file.ee_body,
         masses=dict(file.masses),
+        couplings=_couplings(file),
+        drop_actuators=file.drop_actuators,
         **limits,
     )
 

@@ -12,9 +12,10 @@ import mujoco
 import numpy as np
 
 from funrec.typed import FloatArray
+from funrec_robot.ik import IKConfig
 from funrec_robot.robot import RobotDescription
 from funrec_robot.scene import box_corners, geom_boxes, subtree_bodies
-from funrec_robot.sim_model import build_mujoco_model, reset_to_home, robot_indices
+from funrec_robot.sim_model import RobotIndices, apply_couplings, build_mujoco_model, reset_to_home, robot_indices
 
 FIXED_JAW_REACH_M = 0.02
 """A geom of the hand (not of a finger) reaching this close to the fingertips along the approach is a fixed
@@ -62,6 +63,12 @@ class RobotGeometry:
     down and up from its home height, (<= 0, >= 0) m; None otherwise."""
     lift_sign: float = 1.0
     """+1 when the lift joint's position raises the shoulder, -1 when it lowers it."""
+    reach_min: float = 0.0
+    """Nearest the wrist comes to the shoulder with a telescoping arm drawn in (as far as the IK moves it), m;
+    0 for other arms."""
+    reach_yaw: float = 0.0
+    """Direction the arm reaches out in, as a yaw about the base's z from its x axis, rad: the extending direction
+    of a telescoping arm's horizontal slide, else 0 (forward)."""
 
 
 def _circles(corners: FloatArray, z_low: float, z_high: float) -> tuple[Circle, ...]:
@@ -104,13 +111,13 @@ def _measure(robot: RobotDescription) -> RobotGeometry:
     data.qpos[indices.qpos[: len(robot.base_joints)]] = 0.0
     # Finger slides at the open command (a position servo's command is the finger position).
     data.qpos[indices.gripper_qpos] = robot.gripper.open
+    apply_couplings(indices, data.qpos)
     mujoco.mj_kinematics(model, data)
     arm = [model.joint(f"robot/{name}").id for name in robot.arm_joints]
-    anchors = data.xanchor[arm]
-    shoulder, wrist = anchors[1], anchors[-2]
+    shoulder, reach, reach_min, reach_yaw = _shoulder_reach(robot, model, data, indices, arm)
+    wrist = data.xanchor[arm[-2]].copy()
     p_grasp = data.site_xpos[indices.grasp_site]
     R_world_grasp = data.site_xmat[indices.grasp_site].reshape(3, 3)
-    reach = float(np.sum(np.linalg.norm(np.diff(anchors[1:-1], axis=0), axis=1)))
 
     collides = (model.geom_contype != 0) | (model.geom_conaffinity != 0)
     arm_bodies = subtree_bodies(model, int(model.jnt_bodyid[arm[0]]))
@@ -153,7 +160,40 @@ def _measure(robot: RobotDescription) -> RobotGeometry:
         palm_corners=(_corners(model, data, palm_geoms) - p_grasp) @ R_world_grasp if len(palm_geoms) else np.zeros((0, 3)),
         lift_range=lift_range,
         lift_sign=lift_sign,
+        reach_min=reach_min,
+        reach_yaw=reach_yaw,
     )
+
+
+def _shoulder_reach(
+    robot: RobotDescription, model: mujoco.MjModel, data: mujoco.MjData, indices: RobotIndices, arm: list[int]
+) -> tuple[FloatArray, float, float, float]:
+    """Shoulder (anchor of the second arm joint), reach, nearest reach (0 but for a telescoping arm) and the
+    direction the arm reaches in. The reach is the
+    anchor-to-anchor length from the shoulder to the wrist; with a slide between them (a telescoping arm), it is
+    the straight distance from the shoulder with the slide retracted to the wrist with it extended (with the joints
+    coupled to it) as far as the whole-body IK moves it, and the arm reaches along the slide. ``data`` is left at the pose it came in."""
+    k0 = len(robot.base_joints)
+    slides = [k for k in range(1, len(arm) - 1) if model.jnt_type[arm[k]] == mujoco.mjtJoint.mjJNT_SLIDE]
+    if not slides:
+        anchors = data.xanchor[arm]
+        return anchors[1].copy(), float(np.sum(np.linalg.norm(np.diff(anchors[1:-1], axis=0), axis=1))), 0.0, 0.0
+    qpos = data.qpos.copy()
+    ends = []
+    for side, limits in ((1.0, robot.q_min), (-1.0, robot.q_max)):
+        for k in slides:
+            # the travel the whole-body IK uses: its limit margin inside the limits, the leader's share of it
+            margin = IKConfig().limit_margin / robot.stages(robot.arm_joints[k])
+            data.qpos[indices.qpos[k0 + k]] = limits[k0 + k] + side * margin
+        apply_couplings(indices, data.qpos)
+        mujoco.mj_kinematics(model, data)
+        ends.append((data.xanchor[arm[1]].copy(), data.xanchor[arm[-2]].copy()))
+    axis = data.xaxis[arm[slides[-1]]]
+    reach_yaw = float(np.arctan2(axis[1], axis[0])) if abs(float(axis[2])) < 0.5 else 0.0
+    data.qpos[:] = qpos
+    mujoco.mj_kinematics(model, data)
+    shoulder = ends[0][0]
+    return shoulder, float(np.linalg.norm(ends[1][1] - shoulder)), float(np.linalg.norm(ends[0][1] - shoulder)), reach_yaw
 
 
 __all__ = ["Circle", "RobotGeometry", "measure_robot"]

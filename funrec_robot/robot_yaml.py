@@ -121,6 +121,13 @@ class RobotFile:
     """Gap between the jaws at the open command, m (None: twice the command span, for finger slides)."""
     masses: dict[str, float] = field(default_factory=dict)
     """Body -> mass replacing the model's, kg (its inertia scaled alike), for a model file whose masses are wrong."""
+    coupled_joints: dict[str, tuple[str, float]] = field(default_factory=dict)
+    """Follower joint -> (leader joint, ratio): the follower's position is ``ratio`` times the leader's (a
+    telescoping arm's stages, fingers geared to one slide); the model's joint equalities (or ones added in
+    simulation) keep them so."""
+    drop_actuators: tuple[str, ...] = ()
+    """Actuators of the model left out of every model built for the robot (one replaced by a servo the file adds,
+    e.g. a tendon actuator of coupled joints whose leader gets a joint servo instead)."""
 
 
 class _Reader:
@@ -202,7 +209,7 @@ class _Reader:
 
 _TOP_KEYS = (
     "name", "model", "urdf", "root_body", "base", "arm_joints", "gripper", "ee",
-    "held_joints", "home", "postures", "limits", "simulation",
+    "held_joints", "coupled_joints", "home", "postures", "limits", "simulation",
 )  # fmt: skip
 _REQUIRED = ("model", "arm_joints", "gripper", "ee")
 
@@ -256,7 +263,7 @@ def read_robot_yaml(path: str | Path) -> RobotFile:
         (r.text(actuators, "gripper.actuator"),) if actuators is not None else ())
     limits = r.mapping(top.get("limits"), "limits", ("position", "velocity", "acceleration", "effort"))
     position = r.mapping(limits.get("position"), "limits.position")
-    simulation = r.mapping(top.get("simulation"), "simulation", ("gravity_compensation", "damping", "servos", "masses"))
+    simulation = r.mapping(top.get("simulation"), "simulation", ("gravity_compensation", "damping", "servos", "masses", "drop_actuators"))
     gravity = simulation.get("gravity_compensation", False)
     if not isinstance(gravity, bool):
         raise r.fail("simulation.gravity_compensation", f"expected true or false, got {gravity!r}")
@@ -309,7 +316,27 @@ def read_robot_yaml(path: str | Path) -> RobotFile:
         gripper_extra_actuators=actuators[1:],
         masses=r.number_map(simulation.get("masses"), "simulation.masses", positive=True),
         gripper_open_width=r.number(gripper["open_width"], "gripper.open_width", positive=True) if "open_width" in gripper else None,
+        coupled_joints=_couplings(r, top.get("coupled_joints")),
+        drop_actuators=r.names(simulation.get("drop_actuators", []), "simulation.drop_actuators"),
     )
+
+
+def _couplings(r: _Reader, value: object) -> dict[str, tuple[str, float]]:
+    """``{follower: leader}`` or ``{follower: {joint: leader, ratio: r}}`` (ratio 1 by default)."""
+    out = {}
+    for follower, entry in r.mapping(value, "coupled_joints").items():
+        key = f"coupled_joints.{follower}"
+        if isinstance(entry, dict):
+            entry = r.mapping(entry, key, ("joint", "ratio"))
+            if "joint" not in entry:
+                raise r.fail(key, "missing key 'joint' (the leading joint)")
+            ratio = r.number(entry.get("ratio", 1.0), f"{key}.ratio")
+            if ratio == 0.0:
+                raise r.fail(f"{key}.ratio", "must not be zero")
+            out[follower] = (r.text(entry["joint"], f"{key}.joint"), ratio)
+        else:
+            out[follower] = (r.text(entry, key), 1.0)
+    return out
 
 
 def _postures(r: _Reader, value: object) -> tuple[dict[str, float], ...]:

@@ -45,6 +45,12 @@ class RobotIndices:
     """(h,) actuators holding them."""
     held_values: FloatArray
     """(h,) positions they are held at."""
+    follower_qpos: IntArray
+    """(c,) qpos addresses of the coupled joints (``RobotDescription.couplings``)."""
+    leader_qpos: IntArray
+    """(c,) qpos address of each one's leader."""
+    follower_ratio: FloatArray
+    """(c,) follower position per leader position."""
     grasp_site: int
     """Site id of the grasp frame."""
     grasp_site_name: str
@@ -76,7 +82,7 @@ def _T_to_pos_quat(T: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
 def _prepare_robot_spec(robot: RobotDescription) -> mujoco.MjSpec:
     """The robot's model file as a spec, with servos, damping, gravity compensation and grasp site added."""
     try:
-        spec = robot_spec(robot.model_path, robot.root_body, robot.planar_base, robot.ee_body, robot.ee_site)
+        spec = robot_spec(robot.model_path, robot.root_body, robot.planar_base, robot.ee_body, robot.ee_site, robot.drop_actuators)
     except ValueError as exc:
         raise RobotDescriptionError(robot.model_path, f"MuJoCo cannot load the model: {exc}") from exc
     for name, damping in robot.damping.items():
@@ -110,6 +116,7 @@ def _prepare_robot_spec(robot: RobotDescription) -> mujoco.MjSpec:
             gear = abs(float(actuator.gear[0])) or 1.0
             actuator.forcerange = [-gripper.force / gear, gripper.force / gear]
             actuator.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
+    _add_coupling_equalities(spec, robot)
     root = spec.body(robot.root_body)
     if robot.gravity_compensation:
         for body in [root, *root.find_all(mujoco.mjtObj.mjOBJ_BODY)]:
@@ -121,7 +128,9 @@ def _prepare_robot_spec(robot: RobotDescription) -> mujoco.MjSpec:
                 joint.actgravcomp = True
     if robot.grasp_site != robot.ee_site:
         # The compiled model gives the site's pose in its body whatever orientation syntax the file used.
-        compiled = robot_spec(robot.model_path, robot.root_body, robot.planar_base, robot.ee_body, robot.ee_site).compile()
+        compiled = robot_spec(
+            robot.model_path, robot.root_body, robot.planar_base, robot.ee_body, robot.ee_site, robot.drop_actuators
+        ).compile()
         site = compiled.site(robot.ee_site)
         T_body_ee = np.eye(4)
         T_body_ee[:3, :3] = Rotation.from_quat(np.roll(site.quat, -1)).as_matrix()
@@ -130,6 +139,36 @@ def _prepare_robot_spec(robot: RobotDescription) -> mujoco.MjSpec:
         body = spec.body(compiled.body(site.bodyid[0]).name)
         body.add_site(name=robot.grasp_site, pos=pos, quat=quat_wxyz, size=[0.01, 0.01, 0.01])
     return spec
+
+
+def _add_coupling_equalities(spec: mujoco.MjSpec, robot: RobotDescription) -> None:
+    """A joint equality ``follower = ratio * leader`` for each coupling the model's joint equalities do not
+    already tie (directly or through other joints)."""
+    linked: dict[str, set[str]] = {}
+    for equality in spec.equalities:
+        if equality.type == mujoco.mjtEq.mjEQ_JOINT and equality.name2:
+            linked.setdefault(equality.name1, set()).add(equality.name2)
+            linked.setdefault(equality.name2, set()).add(equality.name1)
+    for follower, (leader, ratio) in robot.couplings.items():
+        reached, todo = {follower}, [follower]
+        while todo:
+            for other in linked.get(todo.pop(), ()):
+                if other not in reached:
+                    reached.add(other)
+                    todo.append(other)
+        if leader in reached:
+            continue
+        data = np.zeros(mujoco.mjNEQDATA)
+        data[1] = ratio
+        spec.add_equality(type=mujoco.mjtEq.mjEQ_JOINT, name1=follower, name2=leader, data=data)
+        linked.setdefault(follower, set()).add(leader)
+        linked.setdefault(leader, set()).add(follower)
+
+
+def apply_couplings(indices: RobotIndices, qpos: FloatArray) -> None:
+    """Set the coupled joints of ``qpos`` (a full model configuration, changed in place) from their leaders."""
+    if len(indices.follower_qpos):
+        qpos[indices.follower_qpos] = indices.follower_ratio * qpos[indices.leader_qpos]
 
 
 def build_mujoco_spec(
@@ -226,6 +265,8 @@ def robot_indices(robot: RobotDescription, model: mujoco.MjModel) -> RobotIndice
     root = _id(model, mujoco.mjtObj.mjOBJ_BODY, robot.root_body)
     bodies = [b for b in range(root, model.nbody) if b == root or _ancestor(model, b, root)]
     site = _id(model, mujoco.mjtObj.mjOBJ_SITE, robot.grasp_site)
+    followers = list(robot.couplings)
+    leaders = [robot.couplings[f][0] for f in followers]
     return RobotIndices(
         qpos=np.array([model.jnt_qposadr[j] for j in planning], dtype=np.int64),
         dof=np.array([model.jnt_dofadr[j] for j in planning], dtype=np.int64),
@@ -235,6 +276,9 @@ def robot_indices(robot: RobotDescription, model: mujoco.MjModel) -> RobotIndice
         held_qpos=np.array([model.jnt_qposadr[j] for j in held], dtype=np.int64),
         held_actuators=np.array([_joint_actuator(model, j) for j in held], dtype=np.int64),
         held_values=np.array(list(robot.held_joints.values()), dtype=np.float64),
+        follower_qpos=np.array([model.jnt_qposadr[_id(model, joint, n)] for n in followers], dtype=np.int64),
+        leader_qpos=np.array([model.jnt_qposadr[_id(model, joint, n)] for n in leaders], dtype=np.int64),
+        follower_ratio=np.array([robot.couplings[f][1] for f in followers], dtype=np.float64),
         grasp_site=site,
         grasp_site_name=ROBOT_PREFIX + robot.grasp_site,
         bodies=np.array(bodies, dtype=np.int64),
@@ -273,6 +317,7 @@ def reset_to_home(
     if robot.gripper.actuator is None:
         data.qpos[indices.gripper_qpos] = command
     data.ctrl[indices.gripper_actuators] = command
+    apply_couplings(indices, data.qpos)
     mujoco.mj_forward(model, data)
 
 
@@ -281,4 +326,4 @@ def gripper_position(indices: RobotIndices, data: mujoco.MjData) -> float:
     return float(data.actuator_length[indices.gripper_actuators[0]])
 
 
-__all__ = ["ROBOT_PREFIX", "gripper_position", "RobotIndices", "build_mujoco_model", "build_mujoco_spec", "reset_to_home", "robot_indices"]
+__all__ = ["ROBOT_PREFIX", "apply_couplings", "gripper_position", "RobotIndices", "build_mujoco_model", "build_mujoco_spec", "reset_to_home", "robot_indices"]

@@ -33,7 +33,7 @@ from funrec_robot.keys import TrustError, trusted_keys
 from funrec_robot.plan_file import Plan, plan_from_json, release_offset, sha256_file
 from funrec_robot.protocol import LimitMargins, ProtocolError, validate_plan
 from funrec_robot.robot import RobotDescription
-from funrec_robot.sim_model import build_mujoco_model, gripper_position, reset_to_home, robot_indices
+from funrec_robot.sim_model import apply_couplings, build_mujoco_model, gripper_position, reset_to_home, robot_indices
 
 log = logging.getLogger(__name__)
 
@@ -182,6 +182,7 @@ class SimRobot:
                     )
             else:  # a fresh simulation: spawn the robot where its first plan starts
                 self.data.qpos[self.indices.qpos] = plan.q[0]
+                apply_couplings(self.indices, self.data.qpos)
                 self.data.qvel[:] = 0.0
                 mujoco.mj_forward(self.model, self.data)
             self.placed = True

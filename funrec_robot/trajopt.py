@@ -84,6 +84,18 @@ class PlacementProblem:
     """Per base pose, footprints of the moving part over the states of its stretch and of the next one."""
     start_part: tuple[Polygon, ...]
     """Footprints of the moving part at the start state (for the arm at home)."""
+    reach_yaw: float = 0.0
+    """Direction the arm reaches in, relative to the base's x, rad (``RobotGeometry.reach_yaw``): the facing
+    cost turns it towards the targets."""
+    reach_min: float = 0.0
+    """Nearest the wrist comes to the shoulder when the arm's shape sets it (a telescoping arm drawn in), m;
+    0: ``PlacementConfig.r_min_fraction`` of the reach (an elbow folding)."""
+
+    def window(self, config: PlacementConfig) -> tuple[float, float, float]:
+        """(r_min, r_max, r_mid): the wrist distances from the shoulder allowed and preferred, m."""
+        r_min = self.reach_min if self.reach_min > 0.0 else self.reach * config.r_min_fraction
+        r_max = self.reach * config.r_max_fraction
+        return r_min, r_max, max(self.reach * config.r_mid_fraction, (r_min + r_max) / 2.0 if self.reach_min > 0.0 else 0.0)
 
     @property
     def bases(self) -> int:
@@ -210,8 +222,8 @@ def _base_terms(problem: PlacementProblem, b: int, pose: ca.MX, config: Placemen
     targets = _targets(problem, b, config)
     R = _rotation(pose[2])
     shoulder_xy = pose[:2] + ca.mtimes(R, ca.DM(problem.p_base_shoulder[:2]))
-    r_min, r_max, r_mid = (problem.reach * f for f in (config.r_min_fraction, config.r_max_fraction, config.r_mid_fraction))
-    heading = ca.vertcat(ca.cos(pose[2]), ca.sin(pose[2]))
+    r_min, r_max, r_mid = problem.window(config)
+    heading = ca.vertcat(ca.cos(pose[2] + problem.reach_yaw), ca.sin(pose[2] + problem.reach_yaw))
     dxy = ca.DM(targets[:, :2].T) - ca.repmat(shoulder_xy, 1, len(targets))  # (2, K)
     dz2 = ca.DM((targets[:, 2] - problem.p_base_shoulder[2]) ** 2).T  # (1, K)
     horizontal2 = ca.sum1(dxy**2)
@@ -246,7 +258,7 @@ def _grid(problem: PlacementProblem, b: int, config: PlacementConfig) -> FloatAr
         for angle in angles:
             xy = centroid + radius * np.array([np.cos(angle), np.sin(angle)])
             for offset in config.grid_yaw_offsets:
-                yaw = angle + np.pi + offset
+                yaw = angle + np.pi + offset - problem.reach_yaw
                 pose = np.where(problem.base_free, [xy[0], xy[1], yaw], problem.base_fixed)
                 guesses.append(pose)
     return np.unique(np.round(np.array(guesses), 9), axis=0)
@@ -339,7 +351,7 @@ def place_base(problem: PlacementProblem, config: PlacementConfig = PlacementCon
     poses_out[:, 2] = np.where(problem.base_free[2], np.angle(np.exp(1j * poses_out[:, 2])), poses_out[:, 2])
     distances = _distances(problem, poses_out)
     if violation > config.violation_tolerance:
-        r_min, r_max = problem.reach * config.r_min_fraction, problem.reach * config.r_max_fraction
+        r_min, r_max, _ = problem.window(config)
         raise PlanningError(
             f"base placement: no pose of {B} base stop(s) keeps the handle path within reach and the base clear "
             f"(constraint violation {violation:.3g}; wrist distances {distances.min():.2f}-{distances.max():.2f} m "

@@ -31,11 +31,15 @@ def models_folder(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv(MODELS_ENV, str(MODELS))
 
 
+def _loaded(name: str):
+    os.environ.setdefault(MODELS_ENV, str(MODELS))
+    robot = load_robot(ROBOTS / f"{name}.yaml")
+    return robot, measure_robot(robot)
+
+
 @pytest.fixture(scope="module")
 def tiago():
-    os.environ.setdefault(MODELS_ENV, str(MODELS))
-    robot = load_robot(ROBOTS / "tiago.yaml")
-    return robot, measure_robot(robot)
+    return _loaded("tiago")
 
 
 def test_tiago_is_a_differential_planar_base_with_a_torso_lift(tiago) -> None:
@@ -96,3 +100,50 @@ def test_models_scheme_needs_the_models_folder(tmp_path, monkeypatch) -> None:
     monkeypatch.setenv(MODELS_ENV, str(MODELS))
     with pytest.raises(RobotDescriptionError, match="planar: true adds the base joints"):
         load_robot(bad)
+
+
+@pytest.fixture(scope="module")
+def stretch():
+    return _loaded("stretch3")
+
+
+def test_stretch_plans_its_four_arm_stages_as_one_joint(stretch) -> None:
+    robot, geometry = stretch
+    assert robot.drive == "differential" and robot.arm_joints[:2] == ("joint_lift", "joint_arm_l0")
+    assert robot.couplings["joint_arm_l3"] == ("joint_arm_l0", 1.0)
+    assert robot.couplings["joint_gripper_finger_left_open"] == ("joint_gripper_slide", 10.0)
+    # the mast lifts the shoulder 0-1.1 m; the telescope reaches out to the robot's right: its 0.52 m of travel
+    # less the IK's margin at both ends (a quarter of 5 cm per stage), plus the wrist's offsets
+    assert geometry.lift_range[1] - geometry.lift_range[0] == pytest.approx(1.1)
+    assert geometry.reach_yaw == pytest.approx(-np.pi / 2, abs=1e-3)
+    assert 0.42 < geometry.reach < 0.5 and 0.05 < geometry.reach_min < 0.15
+    assert geometry.reach - geometry.reach_min > 0.3  # straight distances: the wrist sits off the slide's line
+
+
+def test_coupled_stages_follow_their_leader_in_the_model_and_the_ik(stretch) -> None:
+    import mujoco
+
+    from funrec_robot.ik import WholeBodyIK
+    from funrec_robot.sim_model import build_mujoco_model, robot_indices
+
+    robot, _ = stretch
+    model = build_mujoco_model(robot)
+    names = [model.actuator(a).name for a in range(model.nu)]
+    assert "robot/arm" not in names and "robot/lift" not in names  # dropped: servos on joint_lift, joint_arm_l0
+    assert "robot/joint_arm_l0_servo" in names
+    indices = robot_indices(robot, model)
+    ik = WholeBodyIK(robot, model, model.joint("robot/joint_head_pan").id, np.zeros((1, 3)), [], freeze_base=True)
+    q = robot.q_home.copy()
+    start = ik.grasp_pose(q, 0.0, 0.0)
+    target = start.copy()
+    target[:3, 3] += [0.0, -0.15, 0.0]  # 15 cm further to the robot's right: the telescope must extend
+    solved, position_error, _ = ik.solve(target, q, q, 0.0, 0.0)
+    stages = ik.configuration.q[indices.follower_qpos[:3]]
+    k = robot.joint_names.index("joint_arm_l0")
+    assert position_error < 0.005
+    assert stages == pytest.approx([solved[k]] * 3, abs=1e-6)
+    assert 4 * (solved[k] - q[k]) > 0.1  # the four stages share the extension
+    data = mujoco.MjData(model)
+    data.qpos[:] = ik.full_q(solved, 0.0, 0.0)
+    mujoco.mj_kinematics(model, data)
+    assert data.site_xpos[indices.grasp_site] == pytest.approx(target[:3, 3], abs=0.005)

@@ -28,7 +28,7 @@ from funrec.synth import (
 )
 from funrec.synth.scene import JOINT_TYPE_OF_KIND
 from funrec.synth.sensor import SensorNoise, noisy_depth
-from funrec.synth.sequence import plan_sequence
+from funrec.synth.sequence import is_complete, plan_sequence
 
 SELF_CHECK_TOL_M = 0.002
 """Median reprojection tolerance of the issue's self-check; exact depth is stored in 1 mm
@@ -219,6 +219,14 @@ def test_same_seed_same_files_different_seed_different(tiny_capture: Path, tmp_p
         assert _digest(tiny_capture / "gt" / name) == _digest(again / "gt" / name)
 
 
+def test_scenes_only_writes_the_same_true_scene_without_frames(tiny_capture: Path, tmp_path: Path) -> None:
+    scene = generate_sequence(tiny_spec(0), tmp_path, scenes_only=True)
+    for name in ("gt.json", "camera_poses.txt", "scene.xml"):
+        assert _digest(tiny_capture / "gt" / name) == _digest(scene / "gt" / name)
+    assert not (scene / "rgb").exists() and not (scene / "gt" / "masks").exists()
+    assert is_complete(scene, scenes_only=True) and not is_complete(scene)
+
+
 def test_interrupted_generation_leaves_nothing_that_looks_complete(tmp_path: Path) -> None:
     def stop(done: int, total: int) -> None:
         if done == 5:
@@ -236,7 +244,7 @@ def test_generate_suite_skips_complete_sequences(
 
     calls: list[str] = []
     monkeypatch.setitem(suite.SUITES, "unit", lambda: (tiny_spec(0), tiny_spec(4)))
-    monkeypatch.setattr(suite, "generate_sequence", lambda spec, out, progress=None: calls.append(spec.name))
+    monkeypatch.setattr(suite, "generate_sequence", lambda spec, out, progress=None, scenes_only=False: calls.append(spec.name))
     paths = generate_suite(tiny_capture.parent, "unit")
     assert calls == ["tiny_04"] and paths == [tiny_capture, tiny_capture.parent / "tiny_04"]
     (tmp_path / "tiny_00").mkdir()

@@ -212,15 +212,16 @@ def _render_frames(
     return surface
 
 
-def _write_ground_truth(plan: SequencePlan, model: mujoco.MjModel, surface: SurfaceAccumulator, gt: Path) -> None:
-    """Write points, camera poses and (last) gt.json."""
+def _write_ground_truth(plan: SequencePlan, model: mujoco.MjModel, surface: SurfaceAccumulator | None, gt: Path) -> None:
+    """Write points (none without a rendered ``surface``), camera poses and (last) gt.json."""
     import mujoco
 
     spec, motion, parts, fronts = plan.spec, plan.motion, plan.parts, plan.fronts
     names = tuple(f"part_{k}" for k in range(len(parts)))
-    write_ply(gt / "points" / "static.ply", surface.static.points())
-    for name, cloud in zip(names, surface.parts):
-        write_ply(gt / "points" / f"{name}.ply", cloud.points())
+    if surface is not None:
+        write_ply(gt / "points" / "static.ply", surface.static.points())
+        for name, cloud in zip(names, surface.parts):
+            write_ply(gt / "points" / f"{name}.ply", cloud.points())
     write_camera_poses(gt / "camera_poses.txt", motion.T_world_camera)
     frames = np.arange(spec.num_frames)
     rows = []
@@ -295,7 +296,9 @@ def plan_sequence(spec: SequenceSpec, texture_px: int | None = None) -> Sequence
     return SequencePlan(spec, scene, layout.targets, parts, motion, scene_xml, assets)
 
 
-def generate_sequence(spec: SequenceSpec, out_dir: Path, progress: Callable[[int, int], None] | None = None) -> Path:
+def generate_sequence(
+    spec: SequenceSpec, out_dir: Path, progress: Callable[[int, int], None] | None = None, scenes_only: bool = False
+) -> Path:
     """Render one sequence into ``out_dir / spec.name`` (capture folder plus gt/).
 
     Args:
@@ -303,6 +306,8 @@ def generate_sequence(spec: SequenceSpec, out_dir: Path, progress: Callable[[int
         out_dir: parent folder (created if missing); an existing sequence of the same name
             is replaced once the new one is complete.
         progress: called as progress(frames_done, frames_total) after each frame.
+        scenes_only: write only gt/ without its points and masks (scene.xml, textures, camera poses,
+            gt.json): the true scene ``funrec-robot bench`` plans in, in seconds instead of minutes; no frames.
 
     Returns:
         The sequence folder.
@@ -322,7 +327,7 @@ def generate_sequence(spec: SequenceSpec, out_dir: Path, progress: Callable[[int
             (gt / path).write_bytes(data)
         (gt / "scene.xml").write_text(plan.scene_xml)
         model = mujoco.MjModel.from_xml_path(str(gt / "scene.xml"))  # the written file must load on its own
-        surface = _render_frames(plan, temp, render_rng, progress)
+        surface = None if scenes_only else _render_frames(plan, temp, render_rng, progress)
         _write_ground_truth(plan, model, surface, gt)
         final = out_dir / spec.name
         if final.exists():
@@ -339,9 +344,10 @@ def generate_sequence(spec: SequenceSpec, out_dir: Path, progress: Callable[[int
     return final
 
 
-def is_complete(path: Path) -> bool:
-    """True if ``path`` holds a finished sequence (gt/gt.json is written last)."""
-    return (Path(path) / "gt" / "gt.json").is_file() and (Path(path) / "intrinsics.json").is_file()
+def is_complete(path: Path, scenes_only: bool = False) -> bool:
+    """True if ``path`` holds a finished sequence (gt/gt.json is written last), or with ``scenes_only`` at least
+    its ground-truth scene."""
+    return (Path(path) / "gt" / "gt.json").is_file() and (scenes_only or (Path(path) / "intrinsics.json").is_file())
 
 
 __all__ = ["FOCAL_AT_480_PX", "GENERATOR_VERSION", "SequencePlan", "generate_sequence", "is_complete", "plan_sequence"]

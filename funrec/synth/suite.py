@@ -262,6 +262,7 @@ def generate_suite(
     suite: str = "bench",
     only: Sequence[str] | None = None,
     progress: Callable[[int, int], None] | None = None,
+    scenes_only: bool = False,
 ) -> list[Path]:
     """Generate a named suite into ``out_dir``, skipping sequences that are already complete.
 
@@ -270,6 +271,7 @@ def generate_suite(
         suite: a name of :data:`SUITES` ("bench", "plain", "smoke", ...).
         only: names of the suite's sequences to generate (default: all).
         progress: called as progress(frames_done, frames_total) over the frames still to render.
+        scenes_only: only the ground-truth scenes (``generate_sequence``), no frames.
 
     Returns:
         The folders of the selected sequences, in suite order.
@@ -287,7 +289,7 @@ def generate_suite(
             raise FunrecError(f"suite {suite!r} has no sequences {unknown}; it has {sorted(known)}")
         specs = tuple(s for s in specs if s.name in set(only))
     out_dir = Path(out_dir)
-    todo = [s for s in specs if not is_complete(out_dir / s.name)]
+    todo = [s for s in specs if not is_complete(out_dir / s.name, scenes_only)]
     total = sum(s.num_frames for s in todo)
     done = 0
     for spec in todo:
@@ -298,7 +300,7 @@ def generate_suite(
             if progress is not None:
                 progress(offset + frames, total)
 
-        generate_sequence(spec, out_dir, report)
+        generate_sequence(spec, out_dir, report, scenes_only)
         done += spec.num_frames
     return [out_dir / s.name for s in specs]
 
