@@ -249,9 +249,12 @@ def _fragment_parts(windows: list[WindowTracks], evidence: InteractionEvidence |
         parts = list(estimate_articulation(window.tracks, _window_evidence(evidence, window), config.articulation).parts)
         if evidence is None and change is not None:
             parts.sort(key=lambda p: -p.size_score * _motion_scene_change(p, window.first, change))
-        if not parts and capture is not None and trajectory is not None:
-            proposed = _depth_part(window, capture, trajectory, config)
+        if (not parts or _challenge(capture, config)) and capture is not None and trajectory is not None:
+            proposed = _depth_part(window, capture, trajectory, config, parts[0] if parts else None)
             if proposed is not None:
+                if parts:
+                    log.info("fragment %d: depth's %s replaces the tracks' %s", k, proposed[1].joint_type,
+                             parts[0].joint_type)
                 windows[k], part = proposed
                 parts = [part]
         found += [(k, part) for part in parts[: config.parts_per_fragment]]
@@ -265,13 +268,22 @@ def _fragment_parts(windows: list[WindowTracks], evidence: InteractionEvidence |
     return FragmentParts(found, reasons, windows)
 
 
-def _depth_part(window: WindowTracks, capture: Capture, trajectory: CameraTrajectory,
-                config: ReconstructConfig) -> tuple[WindowTracks, PartEstimate] | None:
+def _challenge(capture: Capture | None, config: ReconstructConfig) -> bool:
+    """Whether depth may replace a part the tracks found: only where no object masks say which
+    surface is the part (hand masks say where the hand was, not how the part moved)."""
+    masked = capture is not None and capture.has_object_masks and config.use_object_masks
+    return config.depth_proposal.challenge and not masked
+
+
+def _depth_part(window: WindowTracks, capture: Capture, trajectory: CameraTrajectory, config: ReconstructConfig,
+                rival: PartEstimate | None = None) -> tuple[WindowTracks, PartEstimate] | None:
     """A part proposed from the window's depth: the window with the part's tracks appended, and
-    the part fitted to them (frames and track indices local to the window)."""
+    the part fitted to them (frames and track indices local to the window). None when depth
+    proposes nothing, or nothing that explains the depth clearly better than the ``rival``."""
     span, poses = sub_capture(capture, window.first, window.last), sub_trajectory(trajectory, window.first, window.last)
     hand = (lambda frame: span.mask("hand", frame)) if span.has_hand_masks else None
-    proposal = propose_part(span, poses, hand, config.depth_proposal)
+    joint = None if rival is None else (rival.joint_type, rival.axis_world, rival.pivot_world)
+    proposal = propose_part(span, poses, hand, config.depth_proposal, joint)
     if proposal is None:
         return None
     added = proposal_tracks(proposal, span, poses)

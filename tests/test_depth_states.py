@@ -157,3 +157,21 @@ def test_a_plain_door_is_proposed_from_depth_alone() -> None:
     assert np.rad2deg(np.max(np.abs(sign * proposal.states - true))) < 4.0
     tracks = proposal_tracks(proposal, capture, trajectory)
     assert tracks.visible[0].mean() > 0.9  # the canonical points lie on the closed leaf
+
+
+def test_depth_replaces_a_wrong_rival_joint_and_keeps_a_right_one() -> None:
+    """The tracks' joint competes with the front's hypotheses on the same surface: a slide found
+    from a plain door's first degrees loses to the hinge; the true hinge itself is not replaced
+    (the proposal then returns None: nothing explains the depth clearly better)."""
+    from funrec.parts.depth_proposal import propose_part
+
+    F = 30
+    true = np.deg2rad(70.0) * np.clip((np.arange(F) - 3) / 22.0, 0.0, 1.0)
+    depth = [_door_depth(s) for s in true]
+    capture = type("FakeCapture", (), {"__len__": lambda self: F, "depth_m": lambda self, f: depth[f],
+                                       "intrinsics": SimpleNamespace(K=K, width=160)})()
+    trajectory = SimpleNamespace(T_world_camera=np.tile(np.eye(4), (F, 1, 1)))
+    slide = ("prismatic", np.array([0.0, 0.0, -1.0]), None)
+    replaced = propose_part(capture, trajectory, rival=slide)
+    assert replaced is not None and replaced.joint_type == "revolute"
+    assert propose_part(capture, trajectory, rival=("revolute", AXIS.copy(), HINGE.copy())) is None

@@ -23,14 +23,17 @@ STANDARD_ABLATIONS: tuple[tuple[str, tuple[str, ...]], ...] = (
 its worth is the difference to the full method: the camera pose graph (loop closures), the
 articulation-constrained part-motion refinement, point-track re-seeding and the hand masks."""
 CUES_ABLATIONS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    ("no depth in camera tracking", ("--no-tracking-depth-odometry-enabled",)),
     ("no depth proposals", ("--no-depth-proposal-enabled",)),
+    ("no depth challenge to track parts", ("--no-depth-proposal-challenge",)),
     ("no joint type in depth", ("--no-joint-type-enabled",)),
     ("no hands first", ("--no-hands-first",)),
     ("dense flow on", ("--point-tracks-dense-flow",)),
     ("no hand masks, no hands first", ("--no-use-hand-masks", "--no-hands-first")),
 )
-"""The ablation set "cues": what each texture-independent cue buys (issue 12): parts proposed from
-depth where tracks give none, the joint type decided in depth, hands detected before the parts,
+"""The ablation set "cues": what each texture-independent cue buys (issue 12): depth registration
+where camera tracking has too few corners, parts proposed from depth where tracks give none (and
+challenging the tracks' part where they give one), the joint type decided in depth, hands detected before the parts,
 and the dense-flow track cue (off by default, on here)."""
 ABLATION_SETS: dict[str, tuple[tuple[str, tuple[str, ...]], ...]] = {
     "none": (), "standard": STANDARD_ABLATIONS, "cues": CUES_ABLATIONS, "all": STANDARD_ABLATIONS + CUES_ABLATIONS}

@@ -34,12 +34,17 @@ from funrec.typed import BoolArray, FloatArray, UInt8Array
 class DepthOdometryConfig:
     """Settings of :func:`depth_view` and :func:`register_depth`."""
 
+    enabled: bool = True
+    """Use depth where corners fail (off: corners only; ablation)."""
+
     map_stride: int = 2
     """The keyframe's vertex and normal maps keep every k-th pixel (320x240 at 640x480)."""
-    levels: tuple[tuple[int, float], ...] = ((8, 0.08), (4, 0.04))
-    """Coarse rounds as (source pixel stride, correspondence distance in metres): the first distance
-    must exceed the motion between two frames that the guess misses (a few cm at 15-30 fps). A
-    final round at stride 4 uses the noise-derived distance."""
+    coarse_distances_m: tuple[float, ...] = (0.08, 0.04)
+    """Correspondence distances of the coarse rounds, metres: the first must exceed the motion
+    between two frames that the guess misses (a few cm at 15-30 fps). A final round uses the
+    noise-derived distance."""
+    coarse_strides: tuple[int, ...] = (8, 4)
+    """Source pixel stride of each coarse round."""
     final_stride: int = 4
     """Source pixel stride of the final round (19k points at 640x480: sparser strides slid along
     plain walls, measured)."""
@@ -304,7 +309,10 @@ def register_depth(source: DepthView, target: DepthView, T_init: FloatArray,
                          for z in (source.median_depth_m, target.median_depth_m)))
     final = max(config.min_distance_m, config.noise_sigmas * sigma)
     T = np.asarray(T_init, dtype=np.float64)
-    rounds = [(s, d) for s, d in config.levels if d > final] + [(config.final_stride, final)]
+    if len(config.coarse_strides) != len(config.coarse_distances_m):
+        raise ValueError("coarse_strides and coarse_distances_m must have one entry per coarse round")
+    rounds = [(s, d) for s, d in zip(config.coarse_strides, config.coarse_distances_m, strict=True) if d > final]
+    rounds.append((config.final_stride, final))
     for k, (stride, distance) in enumerate(rounds):
         final_round = k == len(rounds) - 1
         result = _gauss_newton(*source.points(stride), target, T, distance, config.iterations, config,

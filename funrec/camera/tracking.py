@@ -142,10 +142,11 @@ class TrackingConfig:
     chained frame-to-keyframe odometry (ablation)."""
     pose_graph_distance_m: float = 0.03
     """Open3D's max_correspondence_distance: residual scale of the loop-closure line process."""
-    depth_odometry: DepthOdometryConfig | None = DepthOdometryConfig()
-    """Register a frame whose corners fail by coloured ICP of its depth against the keyframe's
-    (:mod:`funrec.camera.depth_odometry`); None turns the fallback off (ablation). Plain walls
-    and doors give too few corners: the dark bench family tracked 30 of 140 frames without it."""
+    depth_odometry: DepthOdometryConfig = DepthOdometryConfig()
+    """Register a frame whose corners fail, or are few, by its depth against the keyframe's
+    (:mod:`funrec.camera.depth_odometry`; ``enabled = False`` turns the fallback off, ablation).
+    Plain walls and doors give too few corners: the dark bench family tracked 30 of 140 frames
+    without it."""
     depth_keyframe_min_fitness: float = 0.7
     """A frame registered by depth becomes a keyframe when less than this fraction of its points
     meets the keyframe's (the view has moved on), or under the keyframe motion limits above."""
@@ -401,7 +402,7 @@ def track_camera(capture: Capture, config: TrackingConfig = TrackingConfig(),
         return uv_all[valid], p_all[valid], keyframe
 
     def register_by_depth(frame: _FrameInput, keyframe: _DepthKeyframe, T_guess: FloatArray):
-        if config.depth_odometry is None:
+        if not config.depth_odometry.enabled:
             return None
         target = keyframe.cloud(K, config.depth_odometry)
         source = _depth_cloud(frame, K, config.depth_odometry) if target is not None else None
@@ -493,7 +494,7 @@ def track_camera(capture: Capture, config: TrackingConfig = TrackingConfig(),
                 new_keyframe(frame_index, frame, p_camera, uv, p_camera)
         else:
             reason = "too few tracked features with depth" if fit is None else "too few rigid inliers"
-            failures[reason + (" and no depth registration" if config.depth_odometry is not None else "")] += 1
+            failures[reason + (" and no depth registration" if config.depth_odometry.enabled else "")] += 1
             if len(uv) < config.keyframe_min_inliers:
                 # Relocalise against stored keyframes near the last pose with ORB.
                 T_world_last = T_world_node[-1] @ T_node_previous

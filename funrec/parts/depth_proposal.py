@@ -78,6 +78,15 @@ class DepthProposalConfig:
     min_gain: float = 0.5
     """The best hypothesis must cost at most this fraction of the part held still (state 0 in every
     frame): less, and depth does not say the surface moved as a joint moves it."""
+    challenge: bool = True
+    """Where the tracks did find a part (and no object masks were recorded), propose one from depth
+    anyway and let it replace the tracks' part when it explains the surface that left clearly
+    better (off: depth proposes only where the tracks found nothing; ablation). A plain door's
+    few tracks die in the first degrees of the opening, where a turn is also a slide."""
+    rival_margin: float = 0.15
+    """... clearly better: its cost is lower by this fraction of the tracks' joint's cost (as
+    :class:`~funrec.parts.joint_type.JointTypeConfig`'s ``min_gain``: a right and a wrong joint
+    differ by 2-5x once the part has moved)."""
     search: DepthStateConfig = DepthStateConfig(revolute_step_rad=np.deg2rad(2.0), prismatic_step_m=0.015)
     """The 1-DoF state search that scores the hypotheses: 2 deg and 1.5 cm steps move a front's
     points by less than the 3 cm depth tolerance, at a quarter of the fine search's cost."""
@@ -109,8 +118,13 @@ HandMask = Callable[[int], BoolArray | None]
 """hand(frame) -> (H, W) bool hand mask of a frame, or None."""
 
 
+Joint = tuple[str, FloatArray, FloatArray | None]
+"""(joint type, unit axis, pivot or None), world frame."""
+
+
 def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask | None = None,
-                 config: DepthProposalConfig = DepthProposalConfig()) -> DepthProposal | None:  # noqa: B008 (frozen)
+                 config: DepthProposalConfig = DepthProposalConfig(),  # noqa: B008 (frozen)
+                 rival: Joint | None = None) -> DepthProposal | None:
     """Propose the part that moved in a span of frames, and its joint, from depth alone.
 
     Args:
@@ -118,9 +132,12 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
         trajectory: the span's ``T_world_camera`` (F, 4, 4).
         hand: hand masks to leave out; None: none known.
         config: settings.
+        rival: a joint found otherwise (the point tracks' part), scored on the same surface in the
+            same way as the front's hypotheses.
 
     Returns:
-        The proposal, or None when too little surface left, or no joint explains its motion.
+        The proposal, or None when too little surface left, no joint explains its motion, or the
+        ``rival`` explains it at least as well as the best hypothesis.
     """
     if not config.enabled or len(capture) < 3:
         return None
@@ -144,7 +161,9 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
     F = len(capture)
     arrived = _arrived(views, np.unique(np.linspace(F // 2, F - 1, config.arrival_frames).astype(int)))
     best: tuple[float, str, FloatArray, FloatArray | None] | None = None
-    for joint_type, axis, pivot in _hypotheses(points, normal, u_axis, v_axis, config.hinge_offsets_m):
+    rival_cost = np.inf
+    hypotheses = _hypotheses(points, normal, u_axis, v_axis, config.hinge_offsets_m)
+    for k, (joint_type, axis, pivot) in enumerate([*hypotheses, *([rival] if rival is not None else [])]):
         coarse_states, cost = depth_fit(coarse, coarse_poses, joint_type, axis, pivot, hypothesis_points, search)
         if not np.isfinite(cost):
             continue
@@ -152,12 +171,18 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
         cost += _return_cost(arrived, joint_type, axis, pivot, states, views, config.search)
         logger.debug("hypothesis %s axis %s pivot %s: cost %.3f", joint_type, axis.round(3),
                      None if pivot is None else pivot.round(3), cost)
-        if best is None or cost < best[0]:
+        if k == len(hypotheses):
+            rival_cost = cost
+        elif best is None or cost < best[0]:
             best = (cost, joint_type, axis, pivot)
     static += _return_cost(arrived, "prismatic", normal, None, np.zeros(F), views, config.search)
     if best is None or not best[0] < config.min_gain * static:
         logger.info("depth proposal: best cost %s vs still %.3f: no joint explains the surface that left",
                     "-" if best is None else f"{best[0]:.3f}", static)
+        return None
+    if rival is not None and not best[0] < (1.0 - config.rival_margin) * rival_cost:
+        logger.info("depth proposal: the tracks' %s (cost %.3f) explains the surface that left as well as the best "
+                    "hypothesis, %s (cost %.3f)", rival[0], rival_cost, best[1], best[0])
         return None
     cost, joint_type, axis, pivot = best
     states = depth_states(capture, trajectory, joint_type, axis, pivot, points, np.zeros(1, np.int64), np.zeros(1),
@@ -368,4 +393,4 @@ def _hypotheses(p: FloatArray, normal: FloatArray, u_axis: FloatArray, v_axis: F
     return out
 
 
-__all__ = ["DepthProposal", "DepthProposalConfig", "propose_part", "proposal_tracks"]
+__all__ = ["DepthProposal", "DepthProposalConfig", "Joint", "propose_part", "proposal_tracks"]

@@ -41,8 +41,23 @@ class JointTypeConfig:
     max_points: int = 400
     """Part points scored at most (evenly subsampled): the cost is a mean, and the search costs
     grid states x points per frame."""
+    max_hinge_distance_m: float = 2.0
+    """A revolute refit whose hinge lies farther than this from every point of the part is not a
+    candidate: doors, lids and flaps hinge on their own edge (measured on a dark-family glass door:
+    the refit put the hinge 2.5e12 m away)."""
     depth: DepthStateConfig = DepthStateConfig()
     """The 1-DoF state search in depth (grid, tolerances, speed limits)."""
+
+
+def _plausible(part: PartEstimate, p_part: np.ndarray, config: JointTypeConfig) -> bool:
+    """A hinge within ``max_hinge_distance_m`` of the part's points (a refit "turn" about a line
+    kilometres away is a slide written as a turn, and its posed points overflow later stages)."""
+    if part.joint_type != "revolute" or part.pivot_world is None or len(p_part) == 0:
+        return True
+    offset = p_part - part.pivot_world
+    along = offset @ part.axis_world
+    distance = np.linalg.norm(offset - along[:, None] * part.axis_world, axis=1)
+    return bool(np.isfinite(distance).all() and distance.min() <= config.max_hinge_distance_m)
 
 
 def choose_joint_type(part: PartEstimate, tracks: PointTracks, capture: Capture, trajectory: CameraTrajectory,
@@ -65,7 +80,7 @@ def choose_joint_type(part: PartEstimate, tracks: PointTracks, capture: Capture,
         return part
     other_type = "prismatic" if part.joint_type == "revolute" else "revolute"
     other = refit_joint(part, tracks, other_type, articulation)
-    if other is None:
+    if other is None or not _plausible(other, canonical_part_points(part, tracks), config):
         return part
     # both scored on the same frames: from the first frame either saw the part move to the window's end
     first = int(min(part.frames[0], other.frames[0]))

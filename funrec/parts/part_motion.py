@@ -260,7 +260,9 @@ def refine_part_motion(
             good = vis & (res_init < config.track_outlier_sigma * np.sqrt(3.0) * sigma_p)
             good &= good.sum(0) >= 2
             f, track = np.nonzero(good)
-            obs = (f, np.unique(track, return_inverse=True)[1], p[f, track])
+            # no track within the outlier bound (the part's tracks all disagree with its joint): the pose
+            # edges alone constrain the joint
+            obs = (f, np.unique(track, return_inverse=True)[1], p[f, track]) if len(f) else None
         axis, pivot, states, confidence, err, evaluations = _solve_joint(part, edges, obs, sigma_p, config)
     else:
         T, b, evaluations = _solve_free_poses(edges, T_init, config)

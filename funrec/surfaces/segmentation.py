@@ -524,8 +524,9 @@ def _main_pieces(p_part: FloatArray, cell_m: float, min_fraction: float) -> Bool
         return np.zeros(0, dtype=bool)
     cell = np.floor((p_part - p_part.min(axis=1, keepdims=True)) / cell_m).astype(np.int64)
     shape = tuple(cell.max(axis=1) + 1)
-    if np.prod(shape) > MAX_PIECE_GRID_CELLS:  # a model spanning the room: coarser cells
-        return _main_pieces(p_part, cell_m * float(np.cbrt(np.prod(shape) / MAX_PIECE_GRID_CELLS)) * 1.01, min_fraction)
+    cells = float(np.prod(np.asarray(shape, dtype=np.float64)))  # in floats: a stray far point overflows int64
+    if cells > MAX_PIECE_GRID_CELLS:  # a model spanning the room: coarser cells
+        return _main_pieces(p_part, cell_m * float(np.cbrt(cells / MAX_PIECE_GRID_CELLS)) * 1.01, min_fraction)
     occupied = np.zeros(shape, dtype=bool)
     occupied[cell[0], cell[1], cell[2]] = True
     labels, _ = ndimage.label(occupied, structure=np.ones((3, 3, 3)))
