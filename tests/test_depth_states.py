@@ -133,17 +133,23 @@ def test_depth_cost_tells_a_turning_door_from_a_slide() -> None:
 
 
 
-def test_a_plain_door_is_proposed_from_depth_alone() -> None:
-    """No tracks at all: the door leaf's surface leaves the first frame's view as it turns, and of
-    the joints hypothesised from that surface the hinge explains the depth (funrec.parts.depth_proposal)."""
-    from funrec.parts.depth_proposal import proposal_tracks, propose_part
-
+def _opening_door():
+    """A plain door turning 0 -> 70 deg over 30 frames seen by a still camera: (true states,
+    capture-like depth source, trajectory-like poses)."""
     F = 30
     true = np.deg2rad(70.0) * np.clip((np.arange(F) - 3) / 22.0, 0.0, 1.0)
     depth = [_door_depth(s) for s in true]
     capture = type("FakeCapture", (), {"__len__": lambda self: F, "depth_m": lambda self, f: depth[f],
                                        "intrinsics": SimpleNamespace(K=K, width=160)})()
-    trajectory = SimpleNamespace(T_world_camera=np.tile(np.eye(4), (F, 1, 1)))
+    return true, capture, SimpleNamespace(T_world_camera=np.tile(np.eye(4), (F, 1, 1)))
+
+
+def test_a_plain_door_is_proposed_from_depth_alone() -> None:
+    """No tracks at all: the door leaf's surface leaves the first frame's view as it turns, and of
+    the joints hypothesised from that surface the hinge explains the depth (funrec.parts.depth_proposal)."""
+    from funrec.parts.depth_proposal import proposal_tracks, propose_part
+
+    true, capture, trajectory = _opening_door()
     proposal = propose_part(capture, trajectory)
     assert proposal is not None and proposal.joint_type == "revolute"
     axis_error_deg = np.rad2deg(np.arccos(min(1.0, abs(float(proposal.axis_world @ AXIS)))))
@@ -165,12 +171,7 @@ def test_depth_replaces_a_wrong_rival_joint_and_keeps_a_right_one() -> None:
     (the proposal then returns None: nothing explains the depth clearly better)."""
     from funrec.parts.depth_proposal import propose_part
 
-    F = 30
-    true = np.deg2rad(70.0) * np.clip((np.arange(F) - 3) / 22.0, 0.0, 1.0)
-    depth = [_door_depth(s) for s in true]
-    capture = type("FakeCapture", (), {"__len__": lambda self: F, "depth_m": lambda self, f: depth[f],
-                                       "intrinsics": SimpleNamespace(K=K, width=160)})()
-    trajectory = SimpleNamespace(T_world_camera=np.tile(np.eye(4), (F, 1, 1)))
+    true, capture, trajectory = _opening_door()
     slide = ("prismatic", np.array([0.0, 0.0, -1.0]), None)
     replaced = propose_part(capture, trajectory, rival=slide)
     assert replaced is not None and replaced.joint_type == "revolute"
