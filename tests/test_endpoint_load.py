@@ -213,6 +213,46 @@ def test_a_vanished_sender_stops_the_robot(tmp_path, how) -> None:
         assert server.sim.last_halt["latency_s"] <= STOP_LATENCY_S, report
 
 
+def test_the_guard_stops_a_plan_while_the_network_loop_is_blocked(tmp_path) -> None:
+    """The holder's connection closes while the endpoint's network loop is stuck for 1 s (standing in for any
+    backlog): the guard thread, not the loop, stops and holds the robot within 100 ms (plus wake-ups)."""
+    from funrec_robot import default_robot_path, load_robot
+    from funrec_robot.driver import TcpDriver
+    from funrec_robot.sim_server import SimServerConfig, make_sim_server
+    from tests.helpers.robot_plans import checked_plan, swing_plan
+
+    robot = load_robot(default_robot_path())
+    server = make_sim_server(robot, None, SimServerConfig(port=0))
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    address = f"127.0.0.1:{server.server_address[1]}"
+    path = checked_plan(tmp_path / "plan.json", swing_plan(robot, duration=4.0, swing=0.2))
+    holder = TcpDriver(address)
+    probe = SchedulingProbe()
+    try:
+        holder.request("acquire")
+        holder.start(holder.upload(path.read_text(), json.loads(path.with_suffix(".check.json").read_text())))
+        time.sleep(0.2)
+        server._loop.call_soon_threadsafe(time.sleep, 1.0)  # noqa: SLF001 (the loop is stuck for 1 s)
+        time.sleep(0.05)
+        vanished = time.monotonic()
+        holder._sock.close()  # noqa: SLF001 (the process is gone: its socket closes)
+        while server.sim.status == "running" and time.monotonic() - vanished < 2.0:
+            time.sleep(0.002)
+        latency = time.monotonic() - vanished
+        allowed = probe.allowance(STOP_LATENCY_S)
+    finally:
+        probe.__exit__()
+        holder._closed = True  # noqa: SLF001
+        server.shutdown()
+        thread.join(5.0)
+        server.server_close()
+    report = {"status": server.sim.status, "detail": server.sim.detail, "latency_s": latency, "allowed_s": allowed}
+    print(json.dumps(report))
+    assert server.sim.status == "fault" and "disconnected" in server.sim.detail, report
+    assert latency <= allowed and latency < 0.9, report  # well before the loop comes back
+
+
 def _flood(address: str, seconds: float, out: Path) -> None:
     """Flood an endpoint for ``seconds`` from several threads; write what was sent to ``out`` as JSON."""
     from funrec_robot.tls import client_context, client_token
