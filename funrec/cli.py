@@ -163,11 +163,12 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     import json
 
     from funrec.bench.evaluate import evaluate_twin, evaluation_to_json, format_evaluation
+    from funrec.formats.staged_folder import write_text_staged
 
     evaluation = evaluate_twin(args.twin, args.gt)
     print(format_evaluation(evaluation))
     if args.json:
-        Path(args.json).write_text(json.dumps(evaluation_to_json(evaluation), indent=2) + "\n")
+        write_text_staged(args.json, json.dumps(evaluation_to_json(evaluation), indent=2) + "\n")
     return 0
 
 
