@@ -122,8 +122,9 @@ def _is_loopback(host: str) -> bool:
 
 
 class Endpoint:
-    """A bound ``funrec-robot/2`` server around a robot object (``upload``, ``start``, ``stop``, ``estop``,
-    ``reset``, ``heartbeat``, ``state``, ``lock``, ``status``, ``detail``, ``notify``).
+    """A bound ``funrec-robot/2`` server around a robot object (``upload``, ``start``, ``stop(detail, status,
+    cause_time=)``, ``estop(who, cause_time=)``, ``reset``, ``heartbeat``, ``state``, ``lock``, ``status``,
+    ``detail``, ``last_heartbeat``, ``last_halt``, ``notify``; see :class:`funrec_robot.sim_server.SimRobot`).
 
     Raises:
         FunrecError: without authentication on a non-loopback address unless the config names the risk.
