@@ -287,7 +287,7 @@ class Endpoint:
         self.holder = None
         with self.sim.lock:
             if self.sim.status == "running":
-                self.sim.stop(f"lease lapsed ({why}): stopped and holding", "fault")
+                self.sim.stop(f"lease lapsed ({why}): stopped and holding", "fault", cause_time=time.monotonic())
 
     # -- incoming -----------------------------------------------------------------------------------------
     async def _handle(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:

@@ -95,18 +95,26 @@ def _run_plan_measuring_stop(address: str, path: Path, duration: float) -> tuple
     return result.wall_time / duration, max(rtts), max(stop_rtts), max(inside)
 
 
-def test_fuzzed_messages_each_get_a_reply_while_a_plan_runs(tmp_path) -> None:
-    """2000 seeded hostile lines on an authenticated connection, while a well-behaved client runs a 2 s plan."""
-    from funrec_robot import default_robot_path, load_robot
-    from funrec_robot.driver import TcpDriver
+@pytest.fixture()
+def served(robot):
+    """serve-sim with its default settings (a 1 s heartbeat timeout) in a thread: (server, robot, "host:port")."""
     from funrec_robot.sim_server import SimServerConfig, make_sim_server
-    from tests.helpers.robot_plans import checked_plan, swing_plan
 
-    robot = load_robot(default_robot_path())
     server = make_sim_server(robot, None, SimServerConfig(port=0))
     thread = threading.Thread(target=server.serve_forever, daemon=True)
     thread.start()
-    address = f"127.0.0.1:{server.server_address[1]}"
+    yield server, robot, f"127.0.0.1:{server.server_address[1]}"
+    server.shutdown()
+    thread.join(5.0)
+    server.server_close()
+
+
+def test_fuzzed_messages_each_get_a_reply_while_a_plan_runs(served, tmp_path) -> None:
+    """2000 seeded hostile lines on an authenticated connection, while a well-behaved client runs a 2 s plan."""
+    from funrec_robot.driver import TcpDriver
+    from tests.helpers.robot_plans import checked_plan, swing_plan
+
+    server, robot, address = served
     path = checked_plan(tmp_path / "plan.json", swing_plan(robot, duration=2.0, swing=0.1))
     rss_before = _rss_mb(os.getpid())
     fuzzer = TcpDriver(address)
@@ -135,9 +143,6 @@ def test_fuzzed_messages_each_get_a_reply_while_a_plan_runs(tmp_path) -> None:
         fuzz_seconds = time.monotonic() - fuzz_started
     finally:
         fuzzer.close()
-        server.shutdown()
-        thread.join(5.0)
-        server.server_close()
     del replies_before
     report = {"fuzz_lines": len(lines), "fuzz_seconds": fuzz_seconds, "real_time_factor": rtf, "max_heartbeat_rtt_s": heartbeat_rtt,
               "stop_rtt_s": stop_rtt, "stop_latency_in_endpoint_s": stop_inside, "wakeup_lateness": wakeups,
@@ -165,21 +170,15 @@ while True:
 
 
 @pytest.mark.parametrize("how", ["killed", "frozen"])
-def test_a_vanished_sender_stops_the_robot(tmp_path, how) -> None:
+def test_a_vanished_sender_stops_the_robot(served, tmp_path, how) -> None:
     """The sender's process is killed (its connection closes) or frozen (SIGSTOP: the connection stays open
     and silent): the robot stops and holds, at once or after the 1 s heartbeat timeout."""
     import signal
 
-    from funrec_robot import default_robot_path, load_robot
     from funrec_robot.driver import TcpDriver
-    from funrec_robot.sim_server import SimServerConfig, make_sim_server
     from tests.helpers.robot_plans import checked_plan, swing_plan
 
-    robot = load_robot(default_robot_path())
-    server = make_sim_server(robot, None, SimServerConfig(port=0))
-    thread = threading.Thread(target=server.serve_forever, daemon=True)
-    thread.start()
-    address = f"127.0.0.1:{server.server_address[1]}"
+    server, robot, address = served
     path = checked_plan(tmp_path / "plan.json", swing_plan(robot, duration=8.0, swing=0.2))
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
     sender = subprocess.Popen([sys.executable, "-c", _SENDER, address, str(path)], stdout=subprocess.PIPE, text=True, env=env)
@@ -198,11 +197,8 @@ def test_a_vanished_sender_stops_the_robot(tmp_path, how) -> None:
         sender.kill()
         sender.wait(5.0)
         observer.close()
-        server.shutdown()
-        thread.join(5.0)
-        server.server_close()
     # the frozen sender's last heartbeat left up to 50 ms before it froze: the stop is due 0.95-1.0 s after
-    due = 0.0 if how == "killed" else SimServerConfig().heartbeat_timeout
+    due = 0.0 if how == "killed" else server.config.heartbeat_timeout
     report = {"vanished": how, "stop_event_after_s": latency, "after_due_s": latency - due, "allowed_s": allowed,
               "stop_latency_in_endpoint_s": server.sim.last_halt["latency_s"], "wakeup_lateness": probe.result()}
     print(json.dumps(report))
@@ -213,19 +209,13 @@ def test_a_vanished_sender_stops_the_robot(tmp_path, how) -> None:
         assert server.sim.last_halt["latency_s"] <= STOP_LATENCY_S, report
 
 
-def test_the_guard_stops_a_plan_while_the_network_loop_is_blocked(tmp_path) -> None:
+def test_the_guard_stops_a_plan_while_the_network_loop_is_blocked(served, tmp_path) -> None:
     """The holder's connection closes while the endpoint's network loop is stuck for 1 s (standing in for any
     backlog): the guard thread, not the loop, stops and holds the robot within 100 ms (plus wake-ups)."""
-    from funrec_robot import default_robot_path, load_robot
     from funrec_robot.driver import TcpDriver
-    from funrec_robot.sim_server import SimServerConfig, make_sim_server
     from tests.helpers.robot_plans import checked_plan, swing_plan
 
-    robot = load_robot(default_robot_path())
-    server = make_sim_server(robot, None, SimServerConfig(port=0))
-    thread = threading.Thread(target=server.serve_forever, daemon=True)
-    thread.start()
-    address = f"127.0.0.1:{server.server_address[1]}"
+    server, robot, address = served
     path = checked_plan(tmp_path / "plan.json", swing_plan(robot, duration=4.0, swing=0.2))
     holder = TcpDriver(address)
     probe = SchedulingProbe()
@@ -244,9 +234,6 @@ def test_the_guard_stops_a_plan_while_the_network_loop_is_blocked(tmp_path) -> N
     finally:
         probe.__exit__()
         holder._closed = True  # noqa: SLF001
-        server.shutdown()
-        thread.join(5.0)
-        server.server_close()
     report = {"status": server.sim.status, "detail": server.sim.detail, "latency_s": latency, "allowed_s": allowed}
     print(json.dumps(report))
     assert server.sim.status == "fault" and "disconnected" in server.sim.detail, report
