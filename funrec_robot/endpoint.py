@@ -101,6 +101,33 @@ def return_large_buffers_to_the_os() -> None:
         pass
 
 
+READ_CHUNK_BYTES = 32 << 10
+"""Bytes a connection's transport reads (and decrypts) per turn of the loop (asyncio's default: 256 KiB)."""
+
+
+def short_turns() -> None:
+    """Process-wide, for a process that only serves an endpoint (``serve-sim`` calls it; an endpoint inside
+    another program need not): keep each turn of the loop short, so that a
+    ``stop`` waits little behind other clients' bytes.
+
+    - Each connection reads at most ``READ_CHUNK_BYTES`` a turn: 16 flooding connections at asyncio's 256 KiB
+      cost ~16 ms of CPU a turn in TLS decryption alone, and under CPU contention (two other busy processes)
+      turns took up to 440 ms of wall time; at 32 KiB the longest measured was 130-170 ms, the holder's
+      heartbeat round trip at p99 16-60 ms instead of 160 ms (``tests/test_endpoint_load.py``'s flood).
+    - Every object alive at start-up (the robot model, numpy, the imports) is moved out of the cyclic garbage
+      collector's view (``gc.freeze``): a full collection then walks only what serving allocates, instead of
+      stalling the loop for tens of milliseconds.
+    """
+    import asyncio.selector_events
+    import asyncio.sslproto
+    import gc
+
+    asyncio.sslproto.SSLProtocol.max_size = READ_CHUNK_BYTES
+    asyncio.selector_events._SelectorSocketTransport.max_size = READ_CHUNK_BYTES  # noqa: SLF001 (no public setting)
+    gc.collect()
+    gc.freeze()
+
+
 def _urgent(line: bytes) -> dict[str, Any] | None:
     """The message of a short line whose op is urgent (``stop``, ``estop``), else None (decoded later)."""
     if len(line) > URGENT_LINE_BYTES or b"stop" not in line:
@@ -466,4 +493,4 @@ class Endpoint:
         return {"rate_hz": rate}
 
 
-__all__ = ["Endpoint", "return_large_buffers_to_the_os"]
+__all__ = ["Endpoint", "return_large_buffers_to_the_os", "short_turns"]

@@ -88,10 +88,11 @@ def _run_plan_measuring_stop(address: str, path: Path, duration: float) -> tuple
         driver.stop()
         stop_rtts.append(time.monotonic() - started)
         inside.append(driver.request("status")["timing"]["last_halt"]["latency_s"])
+    loop_lag = driver.request("status")["timing"]["loop_lag_max_s"]
     driver.close()
     print(json.dumps({"heartbeats": len(rtts), "heartbeat_rtt_p50_s": sorted(rtts)[len(rtts) // 2],
                       "heartbeat_rtt_p99_s": sorted(rtts)[int(0.99 * (len(rtts) - 1))], "stop_rtts_s": stop_rtts,
-                      "stop_latency_in_endpoint_s": inside}))
+                      "stop_latency_in_endpoint_s": inside, "endpoint_loop_lag_max_s": loop_lag}))
     return result.wall_time / duration, max(rtts), max(stop_rtts), max(inside)
 
 
