@@ -24,6 +24,7 @@ RECONSTRUCT_COMMON = (
     "use_hand_masks",
     "use_object_masks",
     "parts_per_fragment",
+    "intrinsics_check.enabled",
     "fusion.static_voxel_m",
     "fusion.part_voxel_m",
     "export.density_kg_m3",
@@ -142,17 +143,20 @@ def _cmd_synth(args: argparse.Namespace) -> int:
 
 
 def _cmd_check(args: argparse.Namespace) -> int:
+    from funrec.camera.intrinsics_consistency import require_consistent_intrinsics
     from funrec.formats.capture import load_capture
     from funrec.formats.capture_usable import check_capture_usable
 
     capture = load_capture(args.capture)
     with progress_bar(f"decoding {capture.root.name}") as progress:
         check_capture_usable(capture, progress)
+    verdict = require_consistent_intrinsics(capture)
     K = capture.intrinsics
     masks = ", ".join(sorted(capture.mask_paths)) or "none"
     print(
         f"{capture.root}: {len(capture)} frames {K.width}x{K.height} at {K.fps:g} fps, "
-        f"fx {K.fx:.1f} fy {K.fy:.1f}, masks: {masks}, all frames readable and usable"
+        f"fx {K.fx:.1f} fy {K.fy:.1f}, masks: {masks}, all frames readable and usable; "
+        f"intrinsics against the video: {verdict.verdict} ({verdict.reason})"
     )
     return 0
 
@@ -161,11 +165,12 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     import json
 
     from funrec.bench.evaluate import evaluate_twin, evaluation_to_json, format_evaluation
+    from funrec.formats.staged_folder import write_text_staged
 
     evaluation = evaluate_twin(args.twin, args.gt)
     print(format_evaluation(evaluation))
     if args.json:
-        Path(args.json).write_text(json.dumps(evaluation_to_json(evaluation), indent=2) + "\n")
+        write_text_staged(args.json, json.dumps(evaluation_to_json(evaluation), indent=2) + "\n")
     return 0
 
 

@@ -21,6 +21,7 @@ import trimesh
 from threadpoolctl import threadpool_limits  # a dependency of scikit-learn
 
 from funrec.affordance.contacts import AffordanceConfig, find_affordances
+from funrec.camera.intrinsics_consistency import IntrinsicsCheckConfig, require_consistent_intrinsics
 from funrec.camera.tracking import CameraTrajectory, TrackingConfig, track_camera
 from funrec.export.simulation import ExportConfig, InMemoryTwin, export_simulation
 from funrec.export.twin import TwinWriter
@@ -64,6 +65,8 @@ StageProgress = Callable[[str, int, int], None]
 class ReconstructConfig:
     """Settings of the whole reconstruction; each stage has its own config."""
 
+    intrinsics_check: IntrinsicsCheckConfig = field(default_factory=IntrinsicsCheckConfig)
+    """The video checked against intrinsics.json before anything else (a capture it disagrees with is refused)."""
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     """Camera tracking (stage 1)."""
     point_tracks: PointTrackConfig = field(default_factory=PointTrackConfig)
@@ -422,6 +425,7 @@ def _reconstruct(capture_dir: str | Path, out_dir: str | Path, config: Reconstru
         log.info("%s: %.1f s (CPU %.1f s)", name, seconds[name], cpu_seconds[name])
         return result
 
+    timed("intrinsics", require_consistent_intrinsics, capture, config.intrinsics_check)  # before anything is written
     with TwinWriter(out_dir, overwrite=overwrite) as writer:
         trajectory = timed("camera", track_camera, capture, config.tracking, progress=stage_progress("camera"))
         change = timed("scene change", scene_change, capture, trajectory.T_world_camera, config.scene_change,

@@ -4,6 +4,7 @@ several joint states, as PNG images and an animated GIF."""
 from __future__ import annotations
 
 import logging
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -12,6 +13,7 @@ import numpy as np
 
 from funrec.errors import FunrecError
 from funrec.formats.camera_poses import read_camera_poses
+from funrec.formats.staged_folder import discard_folder, publish_files
 from funrec.formats.twin import ArticulatedPart, read_articulation
 from funrec.offscreen import ensure_gl_backend
 
@@ -75,7 +77,6 @@ def render_twin(twin_dir: str | Path, out_dir: str | Path, config: RenderConfig 
     T_world_camera = read_camera_poses(twin_dir / "camera_poses.txt").T_world_camera
     ensure_gl_backend()
     import mujoco
-    from PIL import Image
 
     try:
         model = mujoco.MjModel.from_xml_path(str(xml))
@@ -83,8 +84,25 @@ def render_twin(twin_dir: str | Path, out_dir: str | Path, config: RenderConfig 
         raise FunrecError(f"{xml}: MuJoCo cannot load it ({exc})") from None
     model.vis.global_.offwidth = max(model.vis.global_.offwidth, config.width)
     model.vis.global_.offheight = max(model.vis.global_.offheight, config.height)
+    # written into a staged folder and moved into out_dir when all are done: Ctrl-C leaves no partial set
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    staged = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.partial-", dir=out_dir.parent))
+    try:
+        names = [p.name for p in _render_all(model, articulation, T_world_camera, staged, config)]
+    except BaseException:
+        discard_folder(staged)
+        raise
+    publish_files(staged, out_dir)
+    log.info("rendered %d images of %s", len(names) - 1, twin_dir)
+    return [out_dir / name for name in names]
+
+
+def _render_all(model, articulation, T_world_camera: np.ndarray, out_dir: Path, config: RenderConfig) -> list[Path]:  # noqa: ANN001
+    """The pictures and the GIF of :func:`render_twin`, written into ``out_dir``."""
+    import mujoco
+    from PIL import Image
+
     data = mujoco.MjData(model)
-    out_dir.mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
     camera = mujoco.MjvCamera()
     camera.type = mujoco.mjtCamera.mjCAMERA_FREE
@@ -130,7 +148,6 @@ def render_twin(twin_dir: str | Path, out_dir: str | Path, config: RenderConfig 
     gif = out_dir / "twin.gif"
     images[0].save(gif, save_all=True, append_images=images[1:], duration=int(config.gif_frame_s * 1000), loop=0)
     written.append(gif)
-    log.info("rendered %d images of %s", len(written) - 1, twin_dir)
     return written
 
 

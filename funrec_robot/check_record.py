@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from funrec.errors import FormatError, PlanningError
+from funrec.formats.staged_folder import write_text_staged
 from funrec.formats.twin import read_json_object
 from funrec_robot.check import CheckConfig, CheckReport
 from funrec_robot.keys import SigningKey, TrustError, load_signing_key, sign, trusted_keys, verify
@@ -152,8 +153,7 @@ def write_signed_record(attested: dict[str, Any], path: str | Path, key: Signing
     """Sign ``attested`` and write the record to ``path``."""
     key = load_signing_key() if key is None else key
     data = {"format": CHECK_FORMAT, "attested": attested, "signature": sign(attested, key), "report": report or {}}
-    Path(path).write_text(json.dumps(data, indent=1) + "\n")
-    return Path(path)
+    return write_text_staged(path, json.dumps(data, indent=1) + "\n")
 
 
 def verify_check_record(

@@ -193,13 +193,14 @@ def _cmd_send(args: argparse.Namespace) -> int:
 def _cmd_serve_sim(args: argparse.Namespace) -> int:
     from funrec.config import config_from_args
     from funrec_robot.catalog import resolve_robot
-    from funrec_robot.endpoint import return_large_buffers_to_the_os
+    from funrec_robot.endpoint import return_large_buffers_to_the_os, short_turns
     from funrec_robot.protocol import PROTOCOL
     from funrec_robot.robot import load_robot
     from funrec_robot.sim_server import SimServerConfig, make_sim_server
 
     return_large_buffers_to_the_os()
     server = make_sim_server(load_robot(resolve_robot(args.robot)), args.scene, config_from_args(SimServerConfig, args))
+    short_turns()  # after the robot is built: its objects are frozen out of the garbage collector's walks
     host, port = server.server_address[:2]
     security = f"TLS, certificate {server.certificate}" if server.ssl is not None else "NO TLS, NO AUTHENTICATION"
     print(f"serving {server.sim.robot.name} ({PROTOCOL}, {security}) on {host}:{port}; Ctrl-C to stop", flush=True)

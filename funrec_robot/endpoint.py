@@ -5,7 +5,12 @@ delivery, and a reply for every message. One asyncio loop serves every client; t
 No client can starve the others: lines are read in linear time and capped (64 KiB before authenticating,
 4 MiB after), each client's outgoing messages queue in its own transport and a client that lets more than
 ``max_send_buffer`` bytes pile up is dropped, each connection handles one message per turn of the loop and
-at most ``max_message_rate`` a second, and connections are capped in number and closed when idle.
+at most ``max_message_rate`` a second, lines over 64 KiB are decoded off the loop, and connections are capped
+in number and closed when idle.
+
+Stopping never waits for other work: an authenticated client's ``stop`` and ``estop`` skip the rate limit,
+and a guard thread of its own, independent of the loop's backlog, stops a running plan within
+``GUARD_PERIOD_S`` when the lease holder's socket closes or its heartbeats cease.
 """
 
 from __future__ import annotations
@@ -14,6 +19,8 @@ import asyncio
 import ipaddress
 import itertools
 import logging
+import os
+import select
 import socket
 import threading
 import time
@@ -44,6 +51,16 @@ OPEN_OPS = ("hello", "auth")
 """Operations allowed before authenticating."""
 LEASE_OPS = ("upload", "start", "stop", "reset", "release")
 """Operations that need the lease (``estop`` never does)."""
+URGENT_OPS = ("stop", "estop")
+"""Operations an authenticated client's connection serves at once, outside its rate limit."""
+URGENT_LINE_BYTES = 1024
+"""Lines up to this long are decoded before the rate limit, to find urgent operations, bytes."""
+OFF_LOOP_DECODE_BYTES = 64 << 10
+"""Lines longer than this are decoded in a worker thread, so that one client's large message does not hold up
+the loop (and every other client's ``stop``), bytes."""
+GUARD_PERIOD_S = 0.01
+"""How often the guard thread looks at the lease holder's socket and heartbeats, s."""
+_HANGUP = select.POLLHUP | select.POLLERR | select.POLLNVAL | getattr(select, "POLLRDHUP", 0x2000)
 
 
 @dataclass
@@ -60,6 +77,8 @@ class _Client:
     closed: bool = False
     busy: bool = False
     """A request of this client is being carried out (e.g. a large upload being verified)."""
+    watch_fd: int = -1
+    """A duplicate of the socket's descriptor that the guard thread polls for a hang-up (-1: none)."""
 
 
 def return_large_buffers_to_the_os() -> None:
@@ -82,6 +101,44 @@ def return_large_buffers_to_the_os() -> None:
         pass
 
 
+READ_CHUNK_BYTES = 32 << 10
+"""Bytes a connection's transport reads (and decrypts) per turn of the loop (asyncio's default: 256 KiB)."""
+
+
+def short_turns() -> None:
+    """Process-wide, for a process that only serves an endpoint (``serve-sim`` calls it; an endpoint inside
+    another program need not): keep each turn of the loop short, so that a
+    ``stop`` waits little behind other clients' bytes.
+
+    - Each connection reads at most ``READ_CHUNK_BYTES`` a turn: 16 flooding connections at asyncio's 256 KiB
+      cost ~16 ms of CPU a turn in TLS decryption alone, and under CPU contention (two other busy processes)
+      turns took up to 440 ms of wall time; at 32 KiB the longest measured was 130-170 ms, the holder's
+      heartbeat round trip at p99 16-60 ms instead of 160 ms (``tests/test_endpoint_load.py``'s flood).
+    - Every object alive at start-up (the robot model, numpy, the imports) is moved out of the cyclic garbage
+      collector's view (``gc.freeze``): a full collection then walks only what serving allocates, instead of
+      stalling the loop for tens of milliseconds.
+    """
+    import asyncio.selector_events
+    import asyncio.sslproto
+    import gc
+
+    asyncio.sslproto.SSLProtocol.max_size = READ_CHUNK_BYTES
+    asyncio.selector_events._SelectorSocketTransport.max_size = READ_CHUNK_BYTES  # noqa: SLF001 (no public setting)
+    gc.collect()
+    gc.freeze()
+
+
+def _urgent(line: bytes) -> dict[str, Any] | None:
+    """The message of a short line whose op is urgent (``stop``, ``estop``), else None (decoded later)."""
+    if len(line) > URGENT_LINE_BYTES or b"stop" not in line:
+        return None
+    try:
+        message = decode_line(line)
+    except FunrecError:
+        return None
+    return message if message.get("op") in URGENT_OPS else None
+
+
 def _is_loopback(host: str) -> bool:
     if host == "localhost":
         return True
@@ -92,8 +149,9 @@ def _is_loopback(host: str) -> bool:
 
 
 class Endpoint:
-    """A bound ``funrec-robot/2`` server around a robot object (``upload``, ``start``, ``stop``, ``estop``,
-    ``reset``, ``heartbeat``, ``state``, ``lock``, ``status``, ``detail``, ``notify``).
+    """A bound ``funrec-robot/2`` server around a robot object (``upload``, ``start``, ``stop(detail, status,
+    cause_time=)``, ``estop(who, cause_time=)``, ``reset``, ``heartbeat``, ``state``, ``lock``, ``status``,
+    ``detail``, ``last_heartbeat``, ``last_halt``, ``notify``; see :class:`funrec_robot.sim_server.SimRobot`).
 
     Raises:
         FunrecError: without authentication on a non-loopback address unless the config names the risk.
@@ -130,6 +188,8 @@ class Endpoint:
         self.holder: int | None = None
         self.internal_errors = 0
         self.dropped_slow = 0
+        self.loop_lag_max = 0.0
+        """Longest the loop's 50 ms watch tick came late, s: how long a message may wait behind others."""
         self._ids = itertools.count(1)
         self._loop: asyncio.AbstractEventLoop | None = None
         self._done: asyncio.Event | None = None
@@ -149,10 +209,14 @@ class Endpoint:
             ssl_handshake_timeout=10.0 if self.ssl else None,
         )
         watchdog = asyncio.create_task(self._watch())
+        guard_done = threading.Event()
+        guard = threading.Thread(target=self._guard, args=(guard_done,), name="funrec-endpoint-guard", daemon=True)
+        guard.start()
         self._started.set()
         try:
             await self._done.wait()
         finally:
+            guard_done.set()
             watchdog.cancel()
             server.close()
             for client in list(self.clients.values()):
@@ -203,11 +267,38 @@ class Endpoint:
             self._send(client, encode(self.sim.state()))
             await asyncio.sleep(period)
 
+    def _guard(self, done: threading.Event) -> None:
+        """Every ``GUARD_PERIOD_S``, in a thread of its own (the loop may be busy): stop a running plan whose lease
+        holder's socket has hung up or whose heartbeats have ceased. The loop lapses the lease afterwards."""
+        poller_fd = -1
+        while not done.wait(GUARD_PERIOD_S):
+            try:
+                if self.sim.status != "running":
+                    continue
+                ident = self.holder
+                holder = self.clients.get(ident) if ident is not None else None
+                fd = -1 if holder is None or holder.closed else holder.watch_fd
+                if fd >= 0 and fd != poller_fd:
+                    poller, poller_fd = select.poll(), fd
+                    poller.register(fd, _HANGUP)
+                if holder is None or holder.closed or (fd >= 0 and any(mask & _HANGUP for _, mask in poller.poll(0))):
+                    why = "no client holds the lease" if ident is None else f"lease lapsed (the holder, client {ident}, disconnected)"
+                    self.sim.stop(f"{why}: stopped and holding", "fault", cause_time=time.monotonic())
+                    continue
+                deadline = self.sim.last_heartbeat + self.config.heartbeat_timeout
+                if time.monotonic() > deadline:
+                    self.sim.stop(f"no heartbeat from the lease holder for {self.config.heartbeat_timeout} s: stopped and holding",
+                                  "fault", cause_time=deadline)
+            except Exception:  # the guard must outlive any bug: log and keep watching
+                log.exception("endpoint guard")
+
     async def _watch(self) -> None:
         """Lapse a silent holder's lease and close idle connections, every 50 ms."""
         while True:
+            before = time.monotonic()
             await asyncio.sleep(0.05)
             now = time.monotonic()
+            self.loop_lag_max = max(self.loop_lag_max, now - before - 0.05)
             holder = self.clients.get(self.holder) if self.holder is not None else None
             if (holder is not None and not holder.busy and now - self.sim.last_heartbeat > self.config.heartbeat_timeout
                     and self.sim.status != "running"):
@@ -223,7 +314,7 @@ class Endpoint:
         self.holder = None
         with self.sim.lock:
             if self.sim.status == "running":
-                self.sim.stop(f"lease lapsed ({why}): stopped and holding", "fault")
+                self.sim.stop(f"lease lapsed ({why}): stopped and holding", "fault", cause_time=time.monotonic())
 
     # -- incoming -----------------------------------------------------------------------------------------
     async def _handle(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
@@ -237,6 +328,7 @@ class Endpoint:
         sock = writer.get_extra_info("socket")
         if sock is not None:  # bounded kernel buffering per client: one that does not read is found (and dropped) soon
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SEND_SOCKET_BUFFER)
+            client.watch_fd = os.dup(sock.fileno())  # the guard's own handle: never a reused descriptor number
         certificate = writer.get_extra_info("peercert")
         if certificate:
             subject = dict(item[0] for item in certificate.get("subject", ()))
@@ -253,6 +345,8 @@ class Endpoint:
             if self.holder == client.ident:
                 self._lapse(f"the holder, client {client.ident}, disconnected")
             writer.transport.abort()
+            if client.watch_fd >= 0:
+                os.close(client.watch_fd)
             # A closed stream's exception keeps its frames, and so its buffer (up to 8 MiB), alive in reference
             # cycles until the cyclic collector runs, which large buffers do not trigger: free the bytes now.
             reader._buffer.clear()  # noqa: SLF001
@@ -260,15 +354,6 @@ class Endpoint:
     async def _serve_client(self, client: _Client) -> None:
         allowance, last = 1.0, time.monotonic()
         while not client.closed:
-            # token bucket: at most max_message_rate messages a second from one connection (a tenth before
-            # authenticating); a faster client waits, and TCP holds its further bytes back
-            rate = self.config.max_message_rate * (1.0 if client.authenticated else 0.1)
-            now = time.monotonic()
-            allowance, last = min(allowance + (now - last) * rate, max(1.0, rate / 10.0)), now
-            if allowance < 1.0:
-                await asyncio.sleep((1.0 - allowance) / rate)
-                continue
-            allowance -= 1.0
             try:
                 line = await client.reader.readuntil(b"\n")
             except asyncio.IncompleteReadError:
@@ -281,7 +366,20 @@ class Endpoint:
             except (ConnectionError, OSError):
                 return
             client.last_seen = time.monotonic()
-            await self._answer(client, line)
+            message = _urgent(line) if client.authenticated else None
+            if message is None:
+                # token bucket: at most max_message_rate messages a second from one connection (a tenth before
+                # authenticating); a faster client waits before its message is served, and TCP holds its further
+                # bytes back. An authenticated client's stop and estop do not wait.
+                rate = self.config.max_message_rate * (1.0 if client.authenticated else 0.1)
+                while True:  # a late wake-up keeps its credit: a loaded machine does not lower the rate
+                    now = time.monotonic()
+                    allowance, last = min(allowance + (now - last) * rate, max(1.0, rate / 10.0)), now
+                    if allowance >= 1.0:
+                        break
+                    await asyncio.sleep((1.0 - allowance) / rate)
+                allowance -= 1.0
+            await self._answer(client, line, message, client.last_seen)
             await asyncio.sleep(0)  # one message per connection per turn: a flooding client cannot starve the others
 
     def _reply(self, client: _Client, ident: Any, error: str | None = None, fields: dict[str, Any] | None = None) -> None:
@@ -291,13 +389,17 @@ class Endpoint:
             message["error"] = error
         self._send(client, encode(message))
 
-    async def _answer(self, client: _Client, line: bytes) -> None:
+    async def _answer(self, client: _Client, line: bytes, message: dict[str, Any] | None, received: float) -> None:
         ident = None
         client.busy = True
         try:
-            message = decode_line(line)
+            if message is None:
+                if len(line) > OFF_LOOP_DECODE_BYTES:
+                    message = await asyncio.get_running_loop().run_in_executor(None, decode_line, line)
+                else:
+                    message = decode_line(line)
             ident = message.get("id")
-            self._reply(client, ident, fields=await self._dispatch(client, message))
+            self._reply(client, ident, fields=await self._dispatch(client, message, received))
         except FunrecError as exc:
             self._reply(client, ident, error=str(exc))
         except Exception as exc:  # a bug must cost a reply, never the connection or the server
@@ -336,7 +438,7 @@ class Endpoint:
             who = "nobody" if self.holder is None else f"client {self.holder}"
             raise ProtocolError(f"{op}: refused: this client does not hold the lease ({who} does); send 'acquire' first")
 
-    async def _dispatch(self, client: _Client, message: dict[str, Any]) -> dict[str, Any]:
+    async def _dispatch(self, client: _Client, message: dict[str, Any], received: float) -> dict[str, Any]:
         sim, op = self.sim, message.get("op")
         if not isinstance(op, str) or op not in OPS:
             raise ProtocolError(f"unknown op {op!r}; ops: {', '.join(OPS)}")
@@ -368,9 +470,9 @@ class Endpoint:
                 raise ProtocolError("start needs 'plan_id' (a string from upload)")
             return sim.start(plan_id)
         if op == "stop":
-            return sim.stop()
+            return sim.stop(cause_time=received)
         if op == "estop":
-            return sim.estop(f"client {client.ident} ({client.peer})")
+            return sim.estop(f"client {client.ident} ({client.peer})", cause_time=received)
         if op == "reset":
             return sim.reset()
         if op == "heartbeat":
@@ -378,7 +480,8 @@ class Endpoint:
                 raise ProtocolError("heartbeat: refused: only the lease holder's heartbeats keep a plan alive")
             return {"status": sim.status}
         if op == "status":
-            return {"status": sim.status, "detail": sim.detail, "state": sim.state(), "lease": self.holder}
+            return {"status": sim.status, "detail": sim.detail, "state": sim.state(), "lease": self.holder,
+                    "timing": {"last_halt": sim.last_halt, "loop_lag_max_s": round(self.loop_lag_max, 4)}}
         return self._subscribe(client, message)
 
     def _subscribe(self, client: _Client, message: dict[str, Any]) -> dict[str, Any]:
@@ -390,4 +493,4 @@ class Endpoint:
         return {"rate_hz": rate}
 
 
-__all__ = ["Endpoint", "return_large_buffers_to_the_os"]
+__all__ = ["Endpoint", "return_large_buffers_to_the_os", "short_turns"]

@@ -11,6 +11,7 @@ import numpy as np
 from funrec.errors import PlanningError
 from funrec.geometry.joints import joint_transform
 from funrec.typed import FloatArray
+from funrec_robot.budget import check_time_limit
 from funrec_robot.ik import WholeBodyIK
 from funrec_robot.plan_file import Plan
 from funrec_robot.robot import RobotDescription
@@ -83,6 +84,7 @@ def first_blocked_state(
     data = mujoco.MjData(model)
     resting: set[tuple[int, int]] = set()
     for k, state in enumerate(states):
+        check_time_limit("the handle path (collision scan of the part's range)")
         data.qpos[:] = model.qpos0
         data.qpos[model.jnt_qposadr[joint]] = state
         mujoco.mj_kinematics(model, data)

@@ -18,6 +18,7 @@ import numpy.typing as npt
 
 from funrec.errors import PlanningError
 from funrec.typed import FloatArray, IntArray
+from funrec_robot.budget import check_time_limit
 from funrec_robot.robot import RobotDescription
 from funrec_robot.scene import bodies_geoms, floor_geoms, gravity_load, subtree_bodies
 from funrec_robot.sim_model import ROBOT_PREFIX, apply_couplings, robot_indices
@@ -395,6 +396,7 @@ class WholeBodyIK:
         configuration = self.configuration
         history: list[float] = []
         for _ in range(iterations):
+            check_time_limit("whole-body IK")
             error = self.frame_task.compute_error(configuration)
             position_error, orientation_error = float(np.linalg.norm(error[:3])), float(np.linalg.norm(error[3:]))
             remaining = 0.0 if unload is None else float(np.abs(unload.compute_error(configuration)).max())
@@ -442,6 +444,7 @@ class WholeBodyIK:
         q = np.asarray(q_start, dtype=np.float64)
         out, pos_err, rot_err = [], [], []
         for T, state, posture in zip(T_world_grasp, states, q_posture):
+            check_time_limit("whole-body IK along the handle path")
             reference = np.concatenate([posture[: self.n_base], q[self.n_base :]])
             q, e_p, e_r = self.solve(T, q, reference, float(state), fingers, unload=unload, rolling=True)
             out.append(q)

@@ -8,6 +8,7 @@ path) | release (open the gripper) | retreat (ruckig back along the approach).
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
@@ -18,6 +19,7 @@ import numpy as np
 
 from funrec.errors import PlanningError
 from funrec.typed import FloatArray
+from funrec_robot.budget import TimeLimitSpent, check_time_limit, plan_time_limit
 from funrec_robot.feasibility import (
     GravityOverload,
     dynamic_limits,
@@ -124,6 +126,7 @@ def _reachable_prefix(states: FloatArray, reachable: Callable[[FloatArray], bool
     that is reachable stays reachable when shortened."""
     low, high = 1, len(states)  # reachable(states[:low]) is assumed, states[:high] is known not to be
     while high - low > 1:
+        check_time_limit("the handle path (arm's reach)")
         mid = (low + high) // 2
         low, high = (mid, high) if reachable(states[:mid]) else (low, mid)
     return low if low >= 2 else 0
@@ -321,12 +324,15 @@ def _search(
     ]
     postures = list(robot.q_postures)
     while pending and time.process_time() - cpu_started < config.time_budget:
+        check_time_limit("the search over base stops and grasps")
         bases, rank, unload, placement = pending.pop(0)
         grasp = candidates[rank]
         if placement is None:
             problem = _placement_problem(robot, model, joint, geometry, grasp.frames, states, bases, config, handle.final_state)
             try:
                 placement = place_base(problem, config.placement)
+            except TimeLimitSpent:
+                raise
             except PlanningError as exc:
                 errors.append((0, exc))
                 continue
@@ -346,6 +352,8 @@ def _search(
             down = {r: float(candidates[r].frames[0, 2, 2]) for r in range(len(candidates))}
             pending.sort(key=lambda attempt: (down[attempt[1]], attempt[0]))
             continue
+        except TimeLimitSpent:
+            raise
         except PlanningError as exc:
             errors.append((1, exc))
             continue
@@ -368,6 +376,7 @@ def _timed(
     rc = config.retime
     moves = list(zip(configs["approach"][:-1], configs["approach"][1:]))
     fast = config.approach_scale
+    check_time_limit("timing (approach)")
     approach = [point_to_point(q0, q1, fast * v, fast * a, rc) for q0, q1 in moves[:-1]]
     approach.append(_hold(moves[-1][0], config.pregrasp_dwell, rc.dt))
     slow = config.final_approach_scale
@@ -376,6 +385,7 @@ def _timed(
     radius = 1.0
     if task.joint_type == "revolute":
         radius = max(float(np.linalg.norm(np.cross(task.axis_world, path[0, :3, 3] - task.pivot_world))), 0.05)
+    check_time_limit("timing (handle path)")
     actuate = retime_path(
         np.column_stack([configs["path"], states]),
         np.concatenate([v, [config.handle_speed / radius]]),
@@ -385,6 +395,7 @@ def _timed(
     if handle.demo and task.demo_times.size and actuate.duration < float(task.demo_times[-1] - task.demo_times[0]):
         actuate = _slowed(actuate, float(task.demo_times[-1] - task.demo_times[0]) / actuate.duration, rc.dt)
     q_path = configs["path"]
+    check_time_limit("timing (retreat)")
     retreat = point_to_point(q_path[-1], configs["retreat"], v, a, rc)
     if handle.final_state is not None:
         # The released part rests on the open fingers until they have slid out from under it.
@@ -485,6 +496,16 @@ def plan_interaction(
     Raises:
         PlanningError: naming the step that failed (base placement, IK at a path state, timing).
     """
+    limit = config.time_limit
+    if isinstance(limit, bool) or not isinstance(limit, (int, float)) or not math.isfinite(limit) or limit <= 0.0:
+        raise PlanningError(f"time limit {limit!r}: expected a finite number of seconds > 0")
+    with plan_time_limit(float(limit)):
+        return _plan_interaction(robot, scene_xml, task, target, start, config, model)
+
+
+def _plan_interaction(robot: RobotDescription, scene_xml: str | Path, task: ArticulationTask, target: str | float,
+                      start: float | None, config: PlanConfig, model: mujoco.MjModel | None) -> Plan:
+    """:func:`plan_interaction` under its time limit."""
     clock = time.perf_counter()
     cpu_started = time.process_time()
     timings: dict[str, float] = {}

@@ -86,6 +86,10 @@ class PlanConfig:
     time_budget: float = 10.0
     """Planning stops trying further grasp tilts and base stops after this much CPU time, s (CPU, not wall
     time: on a loaded machine a wall-clock budget cut attempts and the same plan failed or passed by load)."""
+    time_limit: float = 30.0
+    """Hard CPU-time limit of the whole plan, s: every stage (handle path, base placement, whole-body IK, timing)
+    checks it and the plan fails, naming the stage, once it is spent (``time_budget`` only stops new attempts;
+    the largest plans of the robot bench take under 7 s)."""
     footprint_radius: float = 2.5
     """Furniture within this distance of the handle path enters base placement, m."""
     falling_retreat_scale: float = 0.2

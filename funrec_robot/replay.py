@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from funrec.errors import FunrecError, PlanningError
+from funrec.formats.staged_folder import write_text_staged
 from funrec_robot.check import CheckConfig, T_scene_plan_from_gt, check_plan
 from funrec_robot.check_record import write_check_record
 from funrec_robot.plan import PlanConfig, plan_interaction
@@ -194,7 +195,7 @@ def replay_twin(
         "video": None if video_path is None else str(video_path),
         "steps": [asdict(s) for s in steps],
     }
-    (out_dir / "replay.json").write_text(json.dumps(report, indent=1) + "\n")
+    write_text_staged(out_dir / "replay.json", json.dumps(report, indent=1) + "\n")
     return report
 
 

@@ -120,6 +120,9 @@ class SimRobot:
         self.plan_id = ""
         self.plan_time = 0.0
         self.last_heartbeat = time.monotonic()
+        self.last_halt: dict[str, Any] | None = None
+        """The last stop of a running plan: its status, detail and ``latency_s``, from its cause (the request read,
+        the heartbeat deadline, the hang-up seen) to the hold command (None where the cause has no time)."""
         self.notify: Callable[[dict[str, Any]], None] = lambda message: None
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -196,17 +199,18 @@ class SimRobot:
     def heartbeat(self) -> None:
         self.last_heartbeat = time.monotonic()  # one attribute store: no lock, the network loop never waits
 
-    def stop(self, detail: str = "stop requested", status: str = "stopped") -> dict[str, Any]:
+    def stop(self, detail: str = "stop requested", status: str = "stopped", cause_time: float | None = None) -> dict[str, Any]:
+        """Hold a running plan's current position; ``cause_time`` (monotonic) is when the stop was called for."""
         with self.lock:
             if self.status == "running":
-                self._halt(status, detail)
+                self._halt(status, detail, cause_time)
         return {"status": self.status}
 
-    def estop(self, who: str) -> dict[str, Any]:
+    def estop(self, who: str, cause_time: float | None = None) -> dict[str, Any]:
         """Stop and hold whatever runs; the status becomes ``fault`` (an E-Stop is never a normal end)."""
         with self.lock:
             if self.status == "running":
-                self._halt("fault", f"E-Stop by {who}: stopped and holding")
+                self._halt("fault", f"E-Stop by {who}: stopped and holding", cause_time)
             else:
                 self.status, self.detail = "fault", f"E-Stop by {who}"
         return {"status": self.status}
@@ -220,11 +224,13 @@ class SimRobot:
             self.placed, self.status, self.detail, self.plan_time = False, "ready" if self.plans else "idle", "", 0.0
         return {"status": self.status}
 
-    def _halt(self, status: str, detail: str) -> None:
+    def _halt(self, status: str, detail: str, cause_time: float | None = None) -> None:
         """Hold the current position (caller holds the lock)."""
         q = self.data.qpos[self.indices.qpos]
         if np.all(np.isfinite(q)):
             self.data.ctrl[self.indices.actuators] = q
+        latency = None if cause_time is None else round(max(time.monotonic() - cause_time, 0.0), 4)
+        self.last_halt = {"status": status, "detail": detail, "latency_s": latency}
         self.status, self.detail = status, detail
         self._stop.set()
         self.notify({"type": "event", "event": status, "detail": detail, "plan_time": round(self.plan_time, 4)})
@@ -287,8 +293,10 @@ class SimRobot:
             with self.lock:
                 if self.status != "running":
                     return
-                if time.monotonic() - self.last_heartbeat > self.config.heartbeat_timeout:
-                    self._halt("fault", f"no heartbeat from the lease holder for {self.config.heartbeat_timeout} s: stopped and holding")
+                deadline = self.last_heartbeat + self.config.heartbeat_timeout
+                if time.monotonic() > deadline:
+                    self._halt("fault", f"no heartbeat from the lease holder for {self.config.heartbeat_timeout} s: stopped and holding",
+                               deadline)
                     return
                 if wall > deadline:
                     self._halt("fault", f"execution overran the plan's {plan.duration:.2f} s by more than {self.config.duration_margin} s")

@@ -19,6 +19,7 @@ import numpy.typing as npt
 
 from funrec.errors import PlanningError
 from funrec.typed import FloatArray, IntArray
+from funrec_robot.budget import check_time_limit, remaining_time
 from funrec_robot.robot_geometry import Circle
 from funrec_robot.scene import Polygon
 
@@ -341,9 +342,12 @@ def place_base(problem: PlacementProblem, config: PlacementConfig = PlacementCon
             "print_time": False,
             "ipopt.sb": "yes",
             "ipopt.max_iter": config.max_iterations,
+            **({} if remaining_time() is None else {"ipopt.max_cpu_time": max(remaining_time(), 1e-3)}),
         },
     )
+    check_time_limit("base placement")
     result = solver(x0=np.concatenate(x0), lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+    check_time_limit("base placement")
     solution = np.asarray(result["x"]).ravel()
     g_value = np.asarray(result["g"]).ravel()
     violation = float(_violation(g_value[:, None], lbg, ubg)[0])

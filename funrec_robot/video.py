@@ -156,21 +156,24 @@ def write_video(path: str | Path, frames: list[np.ndarray], fps: float) -> Path:
     path = Path(path)
     if not frames:
         raise PlanningError(f"{path}: no frames to write")
-    if path.suffix.lower() == ".gif":
-        from PIL import Image
+    from funrec.formats.staged_folder import staged_file
 
-        images = [Image.fromarray(f) for f in frames]
-        images[0].save(path, save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0)
-        return path
-    import cv2
+    with staged_file(path) as tmp:  # Ctrl-C while encoding leaves no half-written video
+        if path.suffix.lower() == ".gif":
+            from PIL import Image
 
-    height, width = frames[0].shape[:2]
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (width, height))
-    if not writer.isOpened():
-        raise PlanningError(f"{path}: cv2 cannot open an mp4v video writer")
-    for frame in frames:
-        writer.write(np.ascontiguousarray(frame[..., ::-1]))  # RGB -> BGR
-    writer.release()
+            images = [Image.fromarray(f) for f in frames]
+            images[0].save(tmp, save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0)
+            return path
+        import cv2
+
+        height, width = frames[0].shape[:2]
+        writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), fps, (width, height))
+        if not writer.isOpened():
+            raise PlanningError(f"{path}: cv2 cannot open an mp4v video writer")
+        for frame in frames:
+            writer.write(np.ascontiguousarray(frame[..., ::-1]))  # RGB -> BGR
+        writer.release()
     return path
 
 

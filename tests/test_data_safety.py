@@ -143,3 +143,30 @@ def test_ctrl_c_acts_within_a_long_native_call() -> None:
     assert interruptible(sum, [1, 2]) == 3
     with pytest.raises(ZeroDivisionError):
         interruptible(lambda: 1 / 0)
+
+
+def test_ctrl_c_while_writing_a_file_leaves_the_old_file_and_no_partial_one(tmp_path) -> None:
+    """staged_file (check records, videos, rerun recordings, reports): either the old file or the new whole one."""
+    import numpy as np
+
+    from funrec.formats.staged_folder import staged_file, write_text_staged
+    from funrec_robot.video import write_video
+
+    report = write_text_staged(tmp_path / "report.json", "old\n")
+    with pytest.raises(KeyboardInterrupt), staged_file(report) as tmp:
+        tmp.write_text("half")
+        raise KeyboardInterrupt
+    assert report.read_text() == "old\n" and sorted(p.name for p in tmp_path.iterdir()) == ["report.json"]
+
+    class Interrupted(list):
+        def __iter__(self):
+            yield from self[:3]
+            raise KeyboardInterrupt
+
+    frames = Interrupted([np.zeros((48, 64, 3), np.uint8)] * 10)
+    for name in ("check.mp4", "check.gif"):
+        with pytest.raises(KeyboardInterrupt):
+            write_video(tmp_path / name, frames, 10.0)
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["report.json"], name
+    write_video(tmp_path / "whole.mp4", list(frames[:3]), 10.0)
+    assert (tmp_path / "whole.mp4").stat().st_size > 0

@@ -1,7 +1,13 @@
 """A seeded fuzz test and a bounded localhost flood test of the funrec-robot/2 endpoint: throughout, a
 well-behaved client's plan finishes within 5 % of real time, ``stop`` is answered within 100 ms and the
 server's memory stays bounded. Run as a script (``python tests/test_endpoint_load.py flood ADDRESS SECONDS``)
-this file is the flooding client."""
+this file is the flooding client.
+
+Latency on a shared machine: the endpoint's own stop latency (from reading ``stop``, the heartbeat deadline
+or the hang-up, to the hold command; the endpoint reports it in ``status``) must be within 100 ms plus one
+wake-up; a latency seen by a client (a round trip, or a vanished sender's stop event) within 100 ms plus
+the operating system's wake-up delays measured alongside by :class:`tests.helpers.sched_probe.SchedulingProbe`
+(4 x its p99: on an idle machine well under 1 ms each, so the allowance is then the 100 ms itself)."""
 
 from __future__ import annotations
 
@@ -17,6 +23,8 @@ import time
 from pathlib import Path
 
 import pytest
+
+from tests.helpers.sched_probe import SchedulingProbe
 
 RTF_TOLERANCE = 0.05
 """Largest relative lateness of the well-behaved plan."""
@@ -53,9 +61,9 @@ def _fuzz_line(rng: random.Random) -> bytes:
     return json.dumps(message).encode() + b"\n"
 
 
-def _run_plan_measuring_stop(address: str, path: Path, duration: float) -> tuple[float, float, float]:
+def _run_plan_measuring_stop(address: str, path: Path, duration: float) -> tuple[float, float, float, float]:
     """Send the plan at ``path`` (heartbeats every 50 ms), then start and stop it five times: (real-time
-    factor, longest heartbeat round trip s, longest stop round trip s)."""
+    factor, longest heartbeat round trip s, longest stop round trip s, longest stop latency inside the endpoint s)."""
     from funrec_robot.driver import TcpDriver, send_plan
 
     driver = TcpDriver(address)
@@ -71,7 +79,7 @@ def _run_plan_measuring_stop(address: str, path: Path, duration: float) -> tuple
     result = send_plan(path, address, heartbeat_period=0.05, driver=driver)
     assert result.event == "done", result.detail
     plan_id = result.plan_id
-    stop_rtts = []
+    stop_rtts, inside = [], []
     for _ in range(5):  # start and stop again: the slowest of five stops
         driver.request("reset")
         driver.start(plan_id)
@@ -79,24 +87,35 @@ def _run_plan_measuring_stop(address: str, path: Path, duration: float) -> tuple
         started = time.monotonic()
         driver.stop()
         stop_rtts.append(time.monotonic() - started)
+        inside.append(driver.request("status")["timing"]["last_halt"]["latency_s"])
+    loop_lag = driver.request("status")["timing"]["loop_lag_max_s"]
     driver.close()
     print(json.dumps({"heartbeats": len(rtts), "heartbeat_rtt_p50_s": sorted(rtts)[len(rtts) // 2],
-                      "heartbeat_rtt_p99_s": sorted(rtts)[int(0.99 * (len(rtts) - 1))], "stop_rtts_s": stop_rtts}))
-    return result.wall_time / duration, max(rtts), max(stop_rtts)
+                      "heartbeat_rtt_p99_s": sorted(rtts)[int(0.99 * (len(rtts) - 1))], "stop_rtts_s": stop_rtts,
+                      "stop_latency_in_endpoint_s": inside, "endpoint_loop_lag_max_s": loop_lag}))
+    return result.wall_time / duration, max(rtts), max(stop_rtts), max(inside)
 
 
-def test_fuzzed_messages_each_get_a_reply_while_a_plan_runs(tmp_path) -> None:
-    """2000 seeded hostile lines on an authenticated connection, while a well-behaved client runs a 2 s plan."""
-    from funrec_robot import default_robot_path, load_robot
-    from funrec_robot.driver import TcpDriver
+@pytest.fixture()
+def served(robot):
+    """serve-sim with its default settings (a 1 s heartbeat timeout) in a thread: (server, robot, "host:port")."""
     from funrec_robot.sim_server import SimServerConfig, make_sim_server
-    from tests.helpers.robot_plans import checked_plan, swing_plan
 
-    robot = load_robot(default_robot_path())
     server = make_sim_server(robot, None, SimServerConfig(port=0))
     thread = threading.Thread(target=server.serve_forever, daemon=True)
     thread.start()
-    address = f"127.0.0.1:{server.server_address[1]}"
+    yield server, robot, f"127.0.0.1:{server.server_address[1]}"
+    server.shutdown()
+    thread.join(5.0)
+    server.server_close()
+
+
+def test_fuzzed_messages_each_get_a_reply_while_a_plan_runs(served, tmp_path) -> None:
+    """2000 seeded hostile lines on an authenticated connection, while a well-behaved client runs a 2 s plan."""
+    from funrec_robot.driver import TcpDriver
+    from tests.helpers.robot_plans import checked_plan, swing_plan
+
+    server, robot, address = served
     path = checked_plan(tmp_path / "plan.json", swing_plan(robot, duration=2.0, swing=0.1))
     rss_before = _rss_mb(os.getpid())
     fuzzer = TcpDriver(address)
@@ -117,21 +136,23 @@ def test_fuzzed_messages_each_get_a_reply_while_a_plan_runs(tmp_path) -> None:
     fuzz_started = time.monotonic()
     worker.start()
     try:
-        rtf, heartbeat_rtt, stop_rtt = _run_plan_measuring_stop(address, path, 2.0)
+        with SchedulingProbe() as probe:
+            rtf, heartbeat_rtt, stop_rtt, stop_inside = _run_plan_measuring_stop(address, path, 2.0)
+            wakeups = probe.result()
         done.wait(30.0)
         assert fuzzer.request("status")["ok"]  # the fuzzed connection is still served
         fuzz_seconds = time.monotonic() - fuzz_started
     finally:
         fuzzer.close()
-        server.shutdown()
-        thread.join(5.0)
-        server.server_close()
     del replies_before
-    print(json.dumps({"fuzz_lines": len(lines), "fuzz_seconds": fuzz_seconds, "real_time_factor": rtf,
-                      "max_heartbeat_rtt_s": heartbeat_rtt, "stop_rtt_s": stop_rtt}))
+    report = {"fuzz_lines": len(lines), "fuzz_seconds": fuzz_seconds, "real_time_factor": rtf, "max_heartbeat_rtt_s": heartbeat_rtt,
+              "stop_rtt_s": stop_rtt, "stop_latency_in_endpoint_s": stop_inside, "wakeup_lateness": wakeups,
+              "allowed_rtt_s": probe.allowance(STOP_LATENCY_S)}
+    print(json.dumps(report))
     assert server.internal_errors == 0
-    assert abs(rtf - 1.0) <= RTF_TOLERANCE, rtf
-    assert stop_rtt <= STOP_LATENCY_S and heartbeat_rtt <= STOP_LATENCY_S, (stop_rtt, heartbeat_rtt)
+    assert abs(rtf - 1.0) <= RTF_TOLERANCE, report
+    assert stop_inside <= STOP_LATENCY_S + wakeups["p99_s"], report
+    assert stop_rtt <= probe.allowance(STOP_LATENCY_S) and heartbeat_rtt <= probe.allowance(STOP_LATENCY_S), report
     assert _rss_mb(os.getpid()) - rss_before < 150.0
 
 
@@ -150,25 +171,20 @@ while True:
 
 
 @pytest.mark.parametrize("how", ["killed", "frozen"])
-def test_a_vanished_sender_stops_the_robot(tmp_path, how) -> None:
+def test_a_vanished_sender_stops_the_robot(served, tmp_path, how) -> None:
     """The sender's process is killed (its connection closes) or frozen (SIGSTOP: the connection stays open
     and silent): the robot stops and holds, at once or after the 1 s heartbeat timeout."""
     import signal
 
-    from funrec_robot import default_robot_path, load_robot
     from funrec_robot.driver import TcpDriver
-    from funrec_robot.sim_server import SimServerConfig, make_sim_server
     from tests.helpers.robot_plans import checked_plan, swing_plan
 
-    robot = load_robot(default_robot_path())
-    server = make_sim_server(robot, None, SimServerConfig(port=0))
-    thread = threading.Thread(target=server.serve_forever, daemon=True)
-    thread.start()
-    address = f"127.0.0.1:{server.server_address[1]}"
+    server, robot, address = served
     path = checked_plan(tmp_path / "plan.json", swing_plan(robot, duration=8.0, swing=0.2))
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
     sender = subprocess.Popen([sys.executable, "-c", _SENDER, address, str(path)], stdout=subprocess.PIPE, text=True, env=env)
     observer = TcpDriver(address)
+    probe = SchedulingProbe()
     try:
         assert sender.stdout.readline().strip() == "started"
         time.sleep(0.5)
@@ -176,19 +192,53 @@ def test_a_vanished_sender_stops_the_robot(tmp_path, how) -> None:
         sender.send_signal(signal.SIGKILL if how == "killed" else signal.SIGSTOP)
         event = observer.wait_event(3.0)
         latency = time.monotonic() - vanished
+        allowed = probe.allowance(STOP_LATENCY_S)
     finally:
+        probe.__exit__()
         sender.kill()
         sender.wait(5.0)
         observer.close()
-        server.shutdown()
-        thread.join(5.0)
-        server.server_close()
-    print(json.dumps({"vanished": how, "stop_latency_s": latency}))
+    # the frozen sender's last heartbeat left up to 50 ms before it froze: the stop is due 0.95-1.0 s after
+    due = 0.0 if how == "killed" else server.config.heartbeat_timeout
+    report = {"vanished": how, "stop_event_after_s": latency, "after_due_s": latency - due, "allowed_s": allowed,
+              "stop_latency_in_endpoint_s": server.sim.last_halt["latency_s"], "wakeup_lateness": probe.result()}
+    print(json.dumps(report))
     assert event is not None and event["event"] == "fault", event
-    if how == "killed":
-        assert "disconnected" in event["detail"] and latency < 0.5
-    else:
-        assert "no heartbeat from the lease holder" in event["detail"] and latency < 1.0 + 0.05 + 0.3
+    assert ("disconnected" if how == "killed" else "no heartbeat from the lease holder") in event["detail"], event
+    assert latency - due <= allowed, report
+    if how == "frozen":  # from the heartbeat deadline to the hold command, inside the endpoint
+        assert server.sim.last_halt["latency_s"] <= STOP_LATENCY_S, report
+
+
+def test_the_guard_stops_a_plan_while_the_network_loop_is_blocked(served, tmp_path) -> None:
+    """The holder's connection closes while the endpoint's network loop is stuck for 1 s (standing in for any
+    backlog): the guard thread, not the loop, stops and holds the robot within 100 ms (plus wake-ups)."""
+    from funrec_robot.driver import TcpDriver
+    from tests.helpers.robot_plans import checked_plan, swing_plan
+
+    server, robot, address = served
+    path = checked_plan(tmp_path / "plan.json", swing_plan(robot, duration=4.0, swing=0.2))
+    holder = TcpDriver(address)
+    probe = SchedulingProbe()
+    try:
+        holder.request("acquire")
+        holder.start(holder.upload(path.read_text(), json.loads(path.with_suffix(".check.json").read_text())))
+        time.sleep(0.2)
+        server._loop.call_soon_threadsafe(time.sleep, 1.0)  # noqa: SLF001 (the loop is stuck for 1 s)
+        time.sleep(0.05)
+        vanished = time.monotonic()
+        holder._sock.close()  # noqa: SLF001 (the process is gone: its socket closes)
+        while server.sim.status == "running" and time.monotonic() - vanished < 2.0:
+            time.sleep(0.002)
+        latency = time.monotonic() - vanished
+        allowed = probe.allowance(STOP_LATENCY_S)
+    finally:
+        probe.__exit__()
+        holder._closed = True  # noqa: SLF001
+    report = {"status": server.sim.status, "detail": server.sim.detail, "latency_s": latency, "allowed_s": allowed}
+    print(json.dumps(report))
+    assert server.sim.status == "fault" and "disconnected" in server.sim.detail, report
+    assert latency <= allowed and latency < 0.9, report  # well before the loop comes back
 
 
 def _flood(address: str, seconds: float, out: Path) -> None:
@@ -289,7 +339,9 @@ def test_a_flood_on_localhost_does_not_starve_a_well_behaved_client(tmp_path) ->
         counts = tmp_path / "flood.json"
         flooder = subprocess.Popen([sys.executable, __file__, "flood", address, "9", str(counts)], env=env)
         time.sleep(1.5)  # the flood is under way
-        rtf, heartbeat_rtt, stop_rtt = _run_plan_measuring_stop(address, path, 5.0)
+        with SchedulingProbe() as probe:
+            rtf, heartbeat_rtt, stop_rtt, stop_inside = _run_plan_measuring_stop(address, path, 5.0)
+            wakeups = probe.result()
         flooder.wait(30.0)
         peak = _rss_mb(server.pid, "VmHWM")
         sent = json.loads(counts.read_text())
@@ -297,10 +349,12 @@ def test_a_flood_on_localhost_does_not_starve_a_well_behaved_client(tmp_path) ->
         server.terminate()
         server.wait(10.0)
     report = {"real_time_factor": rtf, "max_heartbeat_rtt_s": heartbeat_rtt, "stop_rtt_s": stop_rtt,
+              "stop_latency_in_endpoint_s": stop_inside, "wakeup_lateness": wakeups, "allowed_rtt_s": probe.allowance(STOP_LATENCY_S),
               "server_rss_idle_mb": rss_idle, "server_peak_mb": peak, **sent}
     print(json.dumps(report))
     assert abs(rtf - 1.0) <= RTF_TOLERANCE, report
-    assert stop_rtt <= STOP_LATENCY_S, report
+    assert stop_inside <= STOP_LATENCY_S + wakeups["p99_s"], report
+    assert stop_rtt <= probe.allowance(STOP_LATENCY_S), report
     assert peak - rss_idle < 150.0, report
 
 

@@ -293,3 +293,33 @@ def test_a_bar_laid_along_the_fingers_meets_the_palm(scenes) -> None:
         assert _bar_meets_palm(door, geometry, 0.01, R, config) is meets, pitch
     knob = dataclasses.replace(door, handle_axis_world=None)
     assert not _bar_meets_palm(knob, geometry, 0.01, rotation_about_grasp_axis(1, [np.pi / 2])[0], config)
+
+
+def test_every_planning_stage_stops_at_the_time_limit(robot, revolute) -> None:
+    """Limits cut at several fractions of the plan's own CPU time: each attempt fails within 0.5 s CPU of its
+    limit, naming the stage that was running (the handle path, the search, IK, placement or timing)."""
+    from funrec_robot.budget import check_time_limit, plan_time_limit
+    from funrec_robot.feasibility import first_blocked_state
+
+    gt, model, task, plan = revolute
+    full = float(plan.provenance["plan_cpu_time_s"])
+    stages = {}
+    for fraction in (0.0, 0.1, 0.3, 0.5, 0.7, 0.9):
+        limit = max(fraction * full, 1e-4)
+        started = time.process_time()
+        config = dataclasses.replace(PlanConfig(), time_limit=limit)
+        try:
+            plan_interaction(robot, gt / "scene.xml", task, "open", config=config, model=model)
+        except PlanningError as exc:
+            assert f"planning time limit of {limit:g} s CPU spent during " in str(exc), exc
+            stages[fraction] = str(exc).split("spent during ")[1].split(";")[0]
+        else:
+            stages[fraction] = "finished"  # a second run may be faster than the first (caches)
+        assert time.process_time() - started < limit + 0.5, (fraction, limit, stages)
+    print(full, stages)
+    assert len({s for s in stages.values() if s != "finished"}) >= 2, stages
+    with plan_time_limit(0.0), pytest.raises(PlanningError, match="during the handle path"):
+        first_blocked_state(model, part_joint(model, task.part), 0.0, 1.0, 0.01)
+    check_time_limit("anything")  # outside a plan there is no limit
+    with pytest.raises(PlanningError, match="time limit nan: expected a finite number"):
+        plan_interaction(robot, gt / "scene.xml", task, "open", config=dataclasses.replace(PlanConfig(), time_limit=float("nan")))

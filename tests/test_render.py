@@ -48,3 +48,33 @@ def test_render_labels_part_and_state(tmp_path: Path) -> None:
     drawer = make_part("part_1", "prismatic", [1.0, 0.0, 0.0], None, [0, 1], [0.0, 0.12])
     assert _state_label(door, np.pi / 4) == "part_0 (revolute) state 0.785 rad (45.0 deg)"
     assert _state_label(drawer, 0.12) == "part_1 (prismatic) state 0.120 m"
+
+
+def test_ctrl_c_while_rendering_leaves_no_pictures(tmp_path: Path, monkeypatch) -> None:
+    """The pictures appear in the output folder together at the end; an interrupted render leaves none there
+    (other files of the folder are kept) and no staged folder beside it."""
+    import pytest
+
+    from funrec import render
+
+    twin = tmp_path / "twin"
+    articulation = write_cabinet_twin(twin)
+    write_camera_poses(twin / "camera_poses.txt", np.stack([np.eye(4)] * articulation.frame_count))
+    export_simulation(twin, FAST_EXPORT)
+    out = tmp_path / "render"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    shots = []
+    label = render._draw_label
+
+    def interrupt_at_the_third(image, text):  # noqa: ANN001
+        shots.append(text)
+        if len(shots) == 3:
+            raise KeyboardInterrupt
+        label(image, text)
+
+    monkeypatch.setattr(render, "_draw_label", interrupt_at_the_third)
+    with pytest.raises(KeyboardInterrupt):
+        render_twin(twin, out, RenderConfig(width=160, height=120, states=3))
+    assert [p.name for p in out.iterdir()] == ["notes.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["render", "twin"]

@@ -43,7 +43,7 @@ from funrec.bench.report import (
 from funrec.bench.scheduler import Progress, last_log_line, run_funrec_child, run_jobs
 from funrec.errors import FunrecError
 from funrec.formats.capture import load_capture
-from funrec.formats.staged_folder import refuse_output_over_input
+from funrec.formats.staged_folder import refuse_output_over_input, write_text_staged
 
 LOGGER = logging.getLogger(__name__)
 
@@ -276,8 +276,8 @@ def run_bench(
         suite_dir, out_dir, tuple(methods), _git_commit(), _machine(), date,
         command_line if command_line is not None else shlex.join(sys.argv), config, baselines,
     )
-    (out_dir / "report.json").write_text(json.dumps(report_to_json(report), indent=2) + "\n")
-    (out_dir / "report.md").write_text(report_to_markdown(report))
+    write_text_staged(out_dir / "report.json", json.dumps(report_to_json(report), indent=2) + "\n")
+    write_text_staged(out_dir / "report.md", report_to_markdown(report))
     return report
 
 

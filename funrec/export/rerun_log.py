@@ -32,6 +32,7 @@ from funrec.errors import ExportError
 from funrec.formats.affordances import read_affordances
 from funrec.formats.camera_poses import read_camera_poses
 from funrec.formats.capture import Capture, read_mask
+from funrec.formats.staged_folder import staged_file
 from funrec.formats.twin import TwinArticulation, read_articulation
 from funrec.surfaces.hands import TWIN_HAND_MASKS, part_poses
 
@@ -91,6 +92,14 @@ def write_rerun(
         raise ExportError(
             f"{capture.root}: {len(capture)} frames, but the twin {twin_dir} was made from {articulation.frame_count}"
         )
+    with staged_file(path) as staged:  # Ctrl-C while logging leaves no half-written recording
+        _write_recording(rr, twin_dir, staged, articulation, capture, config, progress)
+    log.info("rerun recording of %s written to %s", twin_dir, path)
+    return path
+
+
+def _write_recording(rr, twin_dir: Path, path: Path, articulation, capture, config, progress) -> None:  # noqa: ANN001
+    """Log everything of :func:`write_rerun` into ``path``."""
     rec = rr.RecordingStream(application_id="funrec", recording_id=twin_dir.resolve().name)
     rec.save(str(path))
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
@@ -130,8 +139,6 @@ def write_rerun(
             progress(frame + 1, articulation.frame_count)
     rec.flush()
     rec.disconnect()
-    log.info("rerun recording of %s written to %s", twin_dir, path)
-    return path
 
 
 def _log_meshes(rr, rec, twin_dir: Path, articulation: TwinArticulation) -> None:  # noqa: ANN001 - rerun module, stream

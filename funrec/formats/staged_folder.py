@@ -2,13 +2,19 @@
 place at the end, so a failed run never leaves a half-written twin or capture and never loses the old one.
 
 Used by :class:`funrec.export.twin.TwinWriter` and :class:`funrec.convert.output.CaptureOutput`. A killed run
-leaves only a ``.NAME.partial-*`` sibling, which ``funrec batch`` removes before redoing that capture.
+leaves only a ``.NAME.partial-*`` sibling, which ``funrec batch`` removes before redoing that capture. Single
+files (videos, reports, recordings, check records) go through :func:`staged_file`: an interrupted run (Ctrl-C
+included) leaves neither a half-written file nor a temporary one.
 """
 
 from __future__ import annotations
 
+import os
+import secrets
 import shutil
 import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from funrec.errors import FunrecError
@@ -62,4 +68,41 @@ def discard_folder(staged: Path) -> None:
     shutil.rmtree(staged, ignore_errors=True)
 
 
-__all__ = ["discard_folder", "publish_folder", "refuse_output_over_input", "stage_folder"]
+@contextmanager
+def staged_file(path: str | Path) -> Iterator[Path]:
+    """A temporary sibling of ``path`` (``.STEM.partial-*`` with the same suffix, so writers that go by it still
+    work) to write into: renamed over ``path`` when the block ends, deleted when it raises (KeyboardInterrupt
+    included), so ``path`` is either the old file or the complete new one."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    # named, not created: the writer creates it with the usual permissions (mkstemp's would be 0600)
+    tmp = path.with_name(f".{path.stem}.partial-{os.getpid()}-{secrets.token_hex(4)}{path.suffix}")
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def write_text_staged(path: str | Path, text: str) -> Path:
+    """Write a text file through :func:`staged_file`."""
+    with staged_file(path) as tmp:
+        tmp.write_text(text)
+    return Path(path)
+
+
+def publish_files(staged: Path, out_dir: Path) -> list[Path]:
+    """Move every file of the complete ``staged`` folder into ``out_dir`` (created; other files there are kept),
+    then remove ``staged``; returns the moved files' new paths."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    moved = []
+    for item in sorted(staged.iterdir()):
+        os.replace(item, out_dir / item.name)
+        moved.append(out_dir / item.name)
+    shutil.rmtree(staged, ignore_errors=True)
+    return moved
+
+
+__all__ = ["discard_folder", "publish_files", "publish_folder", "refuse_output_over_input", "stage_folder", "staged_file",
+           "write_text_staged"]
