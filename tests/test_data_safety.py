@@ -134,11 +134,16 @@ def test_ctrl_c_acts_within_a_long_native_call() -> None:
 
     from funrec.export.collision import interruptible
 
+    # a shell's background job (`make test &`) starts with SIGINT ignored: restore Python's handler here
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     timer = threading.Timer(0.2, signal.raise_signal, args=(signal.SIGINT,))
     started = time.monotonic()
     timer.start()
-    with pytest.raises(KeyboardInterrupt):
-        interruptible(time.sleep, 10.0)  # a call that releases the GIL, as coacd's does
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            interruptible(time.sleep, 10.0)  # a call that releases the GIL, as coacd's does
+    finally:
+        signal.signal(signal.SIGINT, previous)
     assert time.monotonic() - started < 1.0
     assert interruptible(sum, [1, 2]) == 3
     with pytest.raises(ZeroDivisionError):
