@@ -238,8 +238,9 @@ class FragmentParts:
     windows: list[WindowTracks]
     """The windows' tracks, with the tracks of parts proposed from depth appended."""
     from_depth: frozenset[int] = frozenset()
-    """Fragment indices whose part was proposed from depth: its joint type already won against
-    every other hypothesis in depth, so the joint-type stage leaves it alone."""
+    """Fragment indices whose part was proposed from depth, or whose tracks' joint type depth's best
+    hypothesis shares: the type already won against every other hypothesis in depth, so the
+    joint-type stage leaves it alone."""
 
 
 def _fragment_parts(windows: list[WindowTracks], evidence: InteractionEvidence | None, config: ReconstructConfig,
@@ -285,14 +286,19 @@ def _challenge(capture: Capture | None, config: ReconstructConfig) -> bool:
 def _depth_part(window: WindowTracks, capture: Capture, trajectory: CameraTrajectory, config: ReconstructConfig,
                 rival: PartEstimate | None = None) -> tuple[WindowTracks, PartEstimate] | None:
     """A part proposed from the window's depth: the window with the part's tracks appended, and
-    the part fitted to them (frames and track indices local to the window). None when depth
-    proposes nothing, or nothing that explains the depth clearly better than the ``rival``."""
+    the part fitted to them (frames and track indices local to the window). Where the ``rival``
+    (the tracks' part) is a slide and depth's best hypothesis is a slide too, the rival's slide on
+    depth's surface. None when depth proposes nothing, or the rival holds."""
     span, poses = sub_capture(capture, window.first, window.last), sub_trajectory(trajectory, window.first, window.last)
     hand = (lambda frame: span.mask("hand", frame)) if span.has_hand_masks else None
     joint = None if rival is None else (rival.joint_type, rival.axis_world, rival.pivot_world)
     proposal = propose_part(span, poses, hand, config.depth_proposal, joint)
     if proposal is None:
         return None
+    if proposal.rival_held and (rival is None or proposal.joint_type != rival.joint_type or proposal.joint_type == "revolute"):
+        return None
+    # depth's part replaces the tracks' part: its joint explains the surface that left clearly better, or it is
+    # the tracks' own slide on that surface (see propose_part)
     added = proposal_tracks(proposal, span, poses)
     N = window.tracks.num_tracks
     tracks = PointTracks(np.concatenate([window.tracks.p_world, added.p_world], 1),

@@ -168,11 +168,13 @@ def test_a_plain_door_is_proposed_from_depth_alone() -> None:
 def test_depth_replaces_a_wrong_rival_joint_and_keeps_a_right_one() -> None:
     """The tracks' joint competes with the front's hypotheses on the same surface: a slide found
     from a plain door's first degrees loses to the hinge; the true hinge itself is not replaced
-    (the proposal then returns None: nothing explains the depth clearly better)."""
+    (the proposal says the rival held, and its own best is a hinge too: depth confirms the type)."""
     from funrec.parts.depth_proposal import propose_part
 
     true, capture, trajectory = _opening_door()
     slide = ("prismatic", np.array([0.0, 0.0, -1.0]), None)
     replaced = propose_part(capture, trajectory, rival=slide)
     assert replaced is not None and replaced.joint_type == "revolute"
-    assert propose_part(capture, trajectory, rival=("revolute", AXIS.copy(), HINGE.copy())) is None
+    assert replaced.rival_held is False
+    kept = propose_part(capture, trajectory, rival=("revolute", AXIS.copy(), HINGE.copy()))
+    assert kept is not None and kept.rival_held and kept.joint_type == "revolute"  # depth confirms the hinge
