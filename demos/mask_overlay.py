@@ -16,10 +16,10 @@ import numpy as np
 
 def _project(p_world: np.ndarray, T_world_camera: np.ndarray, K: np.ndarray) -> np.ndarray:
     """(N, 2) pixels of world points (N, 3)."""
-    T_camera_world = np.linalg.inv(T_world_camera)
-    p_camera = p_world @ T_camera_world[:3, :3].T + T_camera_world[:3, 3]
-    uv = p_camera @ K.T
-    return uv[:, :2] / uv[:, 2:]
+    from funrec.geometry.camera import project
+    from funrec.geometry.transforms import invert_transform, transform_points
+
+    return project(transform_points(invert_transform(T_world_camera), p_world), K)[0]
 
 
 def _tint(image: np.ndarray, mask: np.ndarray, bgr: tuple[int, int, int]) -> None:
@@ -33,6 +33,7 @@ def overlay(capture_dir: Path, twin_dir: Path, frame: int) -> np.ndarray:
     from funrec.formats.camera_poses import read_camera_poses
     from funrec.formats.capture import load_capture, read_mask
     from funrec.formats.twin import read_articulation
+    from funrec.geometry.transforms import transform_points
 
     capture = load_capture(capture_dir)
     if not 0 <= frame < len(capture):
@@ -56,8 +57,8 @@ def overlay(capture_dir: Path, twin_dir: Path, frame: int) -> np.ndarray:
             centre_uv = np.array([u[depth > 0].mean(), v[depth > 0].mean()]) if (depth > 0).any() else None
             if centre_uv is not None:
                 z = float(np.median(depth[depth > 0]))
-                p_camera = np.array([(centre_uv[0] - K[0, 2]) * z / K[0, 0], (centre_uv[1] - K[1, 2]) * z / K[1, 1], z])
-                p_world = T_world_camera[:3, :3] @ p_camera + T_world_camera[:3, 3]
+                p_camera = z * np.linalg.solve(K, [centre_uv[0], centre_uv[1], 1.0])  # the pixel lifted to depth z
+                p_world = transform_points(T_world_camera, p_camera[None])[0]
                 ends = _project(np.stack([p_world, p_world + 0.3 * part.axis_world]), T_world_camera, K)
                 cv2.arrowedLine(estimate, tuple(ends[0].astype(int)), tuple(ends[1].astype(int)), (0, 0, 255), 3)
         cv2.putText(estimate, f"{part.name}: {part.joint_type}", (10, 30 + 28 * row), cv2.FONT_HERSHEY_SIMPLEX, 0.8,

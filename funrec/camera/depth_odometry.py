@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import cv2
 import numpy as np
@@ -27,6 +28,7 @@ from scipy.spatial.transform import Rotation
 
 from funrec.camera.features import DepthNoiseModel
 from funrec.geometry.camera import backproject
+from funrec.geometry.transforms import pose_difference
 from funrec.typed import BoolArray, FloatArray, UInt8Array
 
 
@@ -117,13 +119,21 @@ class DepthView:
     """(M, 3) points with a normal at the final stride: the targets of correspondences."""
     n_tree: FloatArray
     """(M, 3) their normals."""
-    tree: cKDTree
-    """k-d tree over ``p_tree``, built once per keyframe."""
     intensity: FloatArray
     """(H, W) grey level in [0, 1], lightly smoothed, full resolution; NaN everywhere when the
     image is flat."""
-    gradient: FloatArray
-    """(2, H, W) its derivative along u and v, per pixel."""
+
+    # Only a keyframe (the target of a registration) needs these: built on first use, once.
+    @cached_property
+    def tree(self) -> cKDTree:
+        """k-d tree over ``p_tree``."""
+        return cKDTree(self.p_tree)
+
+    @cached_property
+    def gradient(self) -> FloatArray:
+        """(2, H, W) derivative of ``intensity`` along u and v, per pixel."""
+        return np.stack([cv2.Sobel(self.intensity, cv2.CV_32F, 1, 0, ksize=3) / 8.0,
+                         cv2.Sobel(self.intensity, cv2.CV_32F, 0, 1, ksize=3) / 8.0])
 
     def points(self, stride: int) -> tuple[FloatArray, FloatArray]:
         """(N, 3) usable points at a pixel stride that is a multiple of the map's, and their (N,)
@@ -183,10 +193,8 @@ def depth_view(gray: UInt8Array, depth_m: FloatArray, usable: BoolArray, K: Floa
     grey = gray.astype(np.float32) / 255.0
     flat = not usable.any() or float(grey[usable].std()) < config.min_grey_spread
     intensity = np.full_like(grey, np.nan) if flat else cv2.GaussianBlur(grey, (5, 5), 1.0)
-    gradient = np.stack([cv2.Sobel(intensity, cv2.CV_32F, 1, 0, ksize=3) / 8.0,
-                         cv2.Sobel(intensity, cv2.CV_32F, 0, 1, ksize=3) / 8.0])
     return DepthView(np.asarray(K, dtype=np.float64), s, p_map, n_map, float(np.median(depth[depth > 0])),
-                     p_tree[keep], n_tree[keep], cKDTree(p_tree[keep]), intensity, gradient)
+                     p_tree[keep], n_tree[keep], intensity)
 
 
 @dataclass(frozen=True)
@@ -292,13 +300,6 @@ def _gauss_newton(p_source: FloatArray, grey_source: FloatArray, target: DepthVi
     return T, A if grey_steps else A + A_grey
 
 
-def _step(T_a: FloatArray, T_b: FloatArray) -> tuple[float, float]:
-    """(translation metres, rotation radians) of T_a^-1 T_b."""
-    T = np.linalg.solve(T_a, T_b)
-    cos = float(np.clip((np.trace(T[:3, :3]) - 1.0) / 2.0, -1.0, 1.0))
-    return float(np.linalg.norm(T[:3, 3])), math.acos(cos)
-
-
 def register_depth(source: DepthView, target: DepthView, T_init: FloatArray,
                    config: DepthOdometryConfig = DepthOdometryConfig()) -> DepthFit | None:  # noqa: B008
     """T_target_source by coarse-to-fine projective point-to-plane ICP from ``T_init``; None when
@@ -328,7 +329,7 @@ def register_depth(source: DepthView, target: DepthView, T_init: FloatArray,
         return None
     std_rad = math.sqrt(max(np.linalg.eigvalsh(covariance[:3, :3]).max(), 0.0))
     std_m = math.sqrt(max(np.linalg.eigvalsh(covariance[3:, 3:]).max(), 0.0))
-    step_m, step_rad = _step(np.asarray(T_init), T)
+    step_m, step_rad = pose_difference(T_init, T)
     if (step_m > config.max_step_m or step_rad > config.max_step_rad or std_m > config.max_std_m
             or std_rad > config.max_std_rad):
         return None

@@ -12,9 +12,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 import open3d as o3d
-from scipy.spatial.transform import Rotation
 
 from funrec.camera.submaps import Submap
+from funrec.geometry.transforms import pose_difference
 from funrec.typed import FloatArray
 
 logger = logging.getLogger(__name__)
@@ -139,10 +139,6 @@ def fpfh_features(submap: Submap, config: RegistrationConfig) -> o3d.pipelines.r
         submap.coarse, o3d.geometry.KDTreeSearchParamHybrid(radius=config.feature_radius_m, max_nn=100))
 
 
-def _angle_rad(T: FloatArray) -> float:
-    return float(np.linalg.norm(Rotation.from_matrix(T[:3, :3]).as_rotvec()))
-
-
 def _colour_icp(source: o3d.geometry.PointCloud, target: o3d.geometry.PointCloud, distance_m: float,
                 T_init: FloatArray, iterations: int, robust: bool = False) -> FloatArray | None:
     """One coloured-ICP run (Open3D), with a Tukey kernel of half the correspondence distance when
@@ -225,15 +221,9 @@ def _global_guess(source: Submap, target: Submap, features: Callable[[Submap], o
     return np.asarray(result.transformation)
 
 
-def _difference(T_a: FloatArray, T_b: FloatArray) -> tuple[float, float]:
-    """(metres, radians) of T_a^-1 T_b."""
-    difference = np.linalg.inv(T_a) @ T_b
-    return float(np.linalg.norm(difference[:3, 3])), _angle_rad(difference)
-
-
 def _close(T_a: FloatArray, T_b: FloatArray, config: RegistrationConfig) -> bool:
     """Whether two transforms differ by at most ``min_correction_m`` and ``min_correction_rad``."""
-    moved_m, turned_rad = _difference(T_a, T_b)
+    moved_m, turned_rad = pose_difference(T_a, T_b)
     return moved_m <= config.min_correction_m and turned_rad <= config.min_correction_rad
 
 
@@ -252,7 +242,7 @@ def _fits(score: _Score, voxel_m: float, config: RegistrationConfig) -> list[str
 def _candidate(source: Submap, target: Submap, T: FloatArray, T_prior: FloatArray, start: str, indices: tuple[int, int],
                config: RegistrationConfig) -> AlignmentEdge:
     score = _score(source, target, T, match_distance(source, target, config))
-    moved_m, turned_rad = _difference(T_prior, T)
+    moved_m, turned_rad = pose_difference(T_prior, T)
     reasons = _fits(score, max(source.voxel_m, target.voxel_m), config)
     if moved_m > config.max_correction_m or turned_rad > config.max_correction_rad:
         reasons.append(f"moves {moved_m * 100:.0f} cm / {math.degrees(turned_rad):.0f} deg from the trajectory")
@@ -323,7 +313,7 @@ def _trust(source: Submap, target: Submap, T_target_source: FloatArray, T_prior:
         if T_source_target is None:
             return True, "reverse registration found no correspondences"
         if not _close(np.linalg.inv(T_source_target), T_target_source, config):
-            moved_m, turned_rad = _difference(np.linalg.inv(T_source_target), T_target_source)
+            moved_m, turned_rad = pose_difference(np.linalg.inv(T_source_target), T_target_source)
             return True, f"reverse registration disagrees by {moved_m * 100:.1f} cm / {math.degrees(turned_rad):.1f} deg"
     return None
 

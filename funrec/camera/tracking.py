@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from funrec.camera.depth_odometry import DepthOdometryConfig, depth_view, register_depth
+from funrec.camera.depth_odometry import DepthOdometryConfig, DepthView, depth_view, register_depth
 from funrec.camera.features import (
     DepthNoiseModel,
     detect_corners,
@@ -35,7 +35,7 @@ from funrec.camera.pose_graph import PoseGraphEdge, optimise_pose_graph
 from funrec.errors import ReconstructionError
 from funrec.formats.capture import Capture
 from funrec.geometry.fitting import RigidFit
-from funrec.geometry.transforms import invert_transform
+from funrec.geometry.transforms import invert_transform, pose_difference
 from funrec.typed import BoolArray, FloatArray, IntArray, UInt8Array
 
 logger = logging.getLogger(__name__)
@@ -183,26 +183,15 @@ class _FrameInput:
     seedable: BoolArray
     """(H, W) hand_free and with depth: where new features may be placed."""
     object_mask: BoolArray | None
+    _depth_view: tuple[DepthView | None] | None = field(default=None, repr=False)
 
-
-class _DepthKeyframe:
-    """The keyframe's depth cloud for the depth fallback, built on first use."""
-
-    def __init__(self, frame: _FrameInput) -> None:
-        self.frame = frame
-        self._cloud: object = None
-        self._built = False
-
-    def cloud(self, K: FloatArray, config: DepthOdometryConfig):
-        if not self._built:
-            self._cloud, self._built = _depth_cloud(self.frame, K, config), True
-        return self._cloud
-
-
-def _depth_cloud(frame: _FrameInput, K: FloatArray, config: DepthOdometryConfig):
-    """The frame's depth cloud without the hand and the interacted object (they move)."""
-    usable = frame.hand_free if frame.object_mask is None else frame.hand_free & ~frame.object_mask
-    return depth_view(frame.gray, frame.depth_m, usable, K, config)
+    def depth_view(self, K: FloatArray, config: DepthOdometryConfig) -> DepthView | None:
+        """The frame's depth view without the hand and the interacted object (they move), built on
+        first use and kept: a frame registered by depth is often the next keyframe."""
+        if self._depth_view is None:
+            usable = self.hand_free if self.object_mask is None else self.hand_free & ~self.object_mask
+            self._depth_view = (depth_view(self.gray, self.depth_m, usable, K, config),)
+        return self._depth_view[0]
 
 
 def _read_frame(capture: Capture, frame: int, config: TrackingConfig) -> _FrameInput:
@@ -265,16 +254,14 @@ def _new_corners(frame: _FrameInput, existing_uv: FloatArray, count: int, config
 
 def _moved_far(T_keyframe_camera: FloatArray, config: TrackingConfig) -> bool:
     """The camera moved or turned beyond the keyframe limits."""
-    angle = float(np.linalg.norm(Rotation.from_matrix(T_keyframe_camera[:3, :3]).as_rotvec()))
-    return (float(np.linalg.norm(T_keyframe_camera[:3, 3])) > config.keyframe_max_translation_m
-            or angle > config.keyframe_max_rotation_rad)
+    moved_m, turned_rad = pose_difference(np.eye(4), T_keyframe_camera)
+    return moved_m > config.keyframe_max_translation_m or turned_rad > config.keyframe_max_rotation_rad
 
 
 def _agree(T_a: FloatArray, T_b: FloatArray, config: TrackingConfig) -> bool:
     """Two estimates of one pose within ``depth_max_disagreement_m`` / ``_rad``."""
-    T = np.linalg.solve(T_a, T_b)
-    angle = float(np.linalg.norm(Rotation.from_matrix(T[:3, :3]).as_rotvec()))
-    return float(np.linalg.norm(T[:3, 3])) <= config.depth_max_disagreement_m and angle <= config.depth_max_disagreement_rad
+    apart_m, apart_rad = pose_difference(T_a, T_b)
+    return apart_m <= config.depth_max_disagreement_m and apart_rad <= config.depth_max_disagreement_rad
 
 
 def _needs_keyframe(T_keyframe_camera: FloatArray, inliers: int, keyframe_size: int, config: TrackingConfig) -> bool:
@@ -401,15 +388,15 @@ def track_camera(capture: Capture, config: TrackingConfig = TrackingConfig(),
         keyframe = _orb_keyframe(len(T_world_node) - 1, frame_index, frame, T_world_node[-1], K, config)
         return uv_all[valid], p_all[valid], keyframe
 
-    def register_by_depth(frame: _FrameInput, keyframe: _DepthKeyframe, T_guess: FloatArray):
+    def register_by_depth(frame: _FrameInput, keyframe: _FrameInput, T_guess: FloatArray):
         if not config.depth_odometry.enabled:
             return None
-        target = keyframe.cloud(K, config.depth_odometry)
-        source = _depth_cloud(frame, K, config.depth_odometry) if target is not None else None
+        target = keyframe.depth_view(K, config.depth_odometry)
+        source = frame.depth_view(K, config.depth_odometry) if target is not None else None
         return None if source is None else register_depth(source, target, T_guess, config.depth_odometry)
 
     frame = _read_frame(capture, 0, config)
-    depth_keyframe = _DepthKeyframe(frame)
+    depth_keyframe = frame
     uv, p_keyframe, current = start_keyframe(0, frame, np.zeros((0, 2)), np.zeros((0, 3)))
     if len(uv) < config.min_inliers:
         raise ReconstructionError(
@@ -438,7 +425,7 @@ def track_camera(capture: Capture, config: TrackingConfig = TrackingConfig(),
         node_of_frame[frame_index], T_node_camera[frame_index] = parent + 1, np.eye(4)
         uv, p_keyframe, current = start_keyframe(frame_index, frame, uv_kept, p_kept)
         keyframe_size, T_node_previous = len(uv), np.eye(4)
-        depth_keyframe = _DepthKeyframe(frame)
+        depth_keyframe = frame
         closable = store if config.use_pose_graph else []
         for candidate in _loop_candidates(closable, current.T_world_camera, {parent}, config):
             result = _register_orb(candidate, current, K, config, rng)
@@ -510,7 +497,7 @@ def track_camera(capture: Capture, config: TrackingConfig = TrackingConfig(),
                     tracked[frame_index] = True
                     uv, p_keyframe, current = start_keyframe(frame_index, frame, np.zeros((0, 2)), np.zeros((0, 3)))
                     keyframe_size, T_node_previous = len(uv), np.eye(4)
-                    depth_keyframe = _DepthKeyframe(frame)
+                    depth_keyframe = frame
                     store.append(current)
                     _bound_store(store, config.max_stored_keyframes)
                     break

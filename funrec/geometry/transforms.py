@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import numpy.typing as npt
 from scipy.spatial.transform import Rotation
@@ -95,6 +97,14 @@ def transform_points(T_a_b: npt.ArrayLike, p_b: npt.ArrayLike) -> FloatArray:
     return np.einsum("nij,nj->ni", T_a_b[:, :3, :3], p_b) + T_a_b[:, :3, 3]
 
 
+def pose_difference(T_a: npt.ArrayLike, T_b: npt.ArrayLike) -> tuple[float, float]:
+    """(translation metres, rotation angle radians) of ``T_a^-1 T_b``: how far two poses of one
+    frame are apart."""
+    T = invert_transform(T_a) @ np.asarray(T_b, dtype=np.float64)
+    cos = float(np.clip((np.trace(T[:3, :3]) - 1.0) / 2.0, -1.0, 1.0))
+    return float(np.linalg.norm(T[:3, 3])), math.acos(cos)
+
+
 def rotation_about_axis(axis: npt.ArrayLike, angle: npt.ArrayLike) -> FloatArray:
     """Rotation matrices about a unit axis (right-hand rule).
 
@@ -118,6 +128,7 @@ __all__ = [
     "check_transform",
     "invert_transform",
     "make_transform",
+    "pose_difference",
     "rotation_about_axis",
     "transform_points",
 ]

@@ -199,11 +199,13 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
     # unrefined hinge 0.519).
     if "revolute" in best_of:
         cost, _, axis, pivot = best_of["revolute"]
-        cost, axis, pivot = _refine_hinge(cost, axis, pivot, normal, lambda a, p: score("revolute", a, p), config)
+        cost, (axis, pivot) = _descend(cost, (axis, pivot), len(config.hinge_refine_steps_deg),
+                                       _hinge_neighbours(normal, config), lambda a, p: score("revolute", a, p))
         best_of["revolute"] = (cost, "revolute", axis, pivot)
     if "prismatic" in best_of:
         cost, _, axis, _ = best_of["prismatic"]
-        cost, axis = _refine_slide(cost, axis, lambda a: score("prismatic", a, None), config)
+        cost, (axis, _) = _descend(cost, (axis, None), len(config.hinge_refine_steps_deg), _slide_neighbours(config),
+                                   lambda a, p: score("prismatic", a, None))
         best_of["prismatic"] = (cost, "prismatic", axis, None)
     best = min(best_of.values(), key=lambda b: b[0]) if best_of else None
     static += _return_cost(arrived, "prismatic", normal, None, np.zeros(F), views, config.search)
@@ -417,49 +419,55 @@ def _front_plane(p: FloatArray, tolerance_m: float, iterations: int = 200
     return x, normal, u_axis, np.cross(normal, u_axis)
 
 
-def _refine_hinge(cost: float, axis: FloatArray, pivot: FloatArray, normal: FloatArray,
-                  score: Callable[[FloatArray, FloatArray], float],
-                  config: DepthProposalConfig) -> tuple[float, FloatArray, FloatArray]:
-    """The hinge line turned within the front's plane (about its normal) and shifted across it
-    while that lowers the cost: coordinate descent over ``config.hinge_refine_steps_deg`` and
-    ``config.hinge_refine_steps_m``. The hypotheses' hinge lines follow the principal axes of the
-    surface that left, which tilt when that surface is not a rectangle aligned with the door's
-    edges, and sit on a 3 cm grid of offsets (measured on mw_door_00: 8.5 deg, 2.2 cm)."""
-    for step_deg, step_m in zip(config.hinge_refine_steps_deg, config.hinge_refine_steps_m, strict=True):
+def _descend(cost: float, joint: tuple[FloatArray, FloatArray | None], steps: int,
+             neighbours: Callable[[FloatArray, FloatArray | None, int], list[tuple[FloatArray, FloatArray | None]]],
+             score: Callable[[FloatArray, FloatArray | None], float]) -> tuple[float, tuple[FloatArray, FloatArray | None]]:
+    """Coordinate descent of a joint (axis, pivot): at step k, take the first of
+    ``neighbours(axis, pivot, k)`` that lowers the cost, until none does, then step k + 1."""
+    for k in range(steps):
         improved = True
         while improved:
             improved = False
-            across = np.cross(normal, axis)
-            moves = [(Rotation.from_rotvec(np.deg2rad(sign * step_deg) * normal).apply(axis), pivot) for sign in (1, -1)]
-            moves += [(axis, pivot + sign * step_m * across) for sign in (1, -1)]
-            for candidate_axis, candidate_pivot in moves:
-                candidate_cost = score(candidate_axis, candidate_pivot)
+            for candidate in neighbours(*joint, k):
+                candidate_cost = score(*candidate)
                 if candidate_cost < cost:
-                    cost, axis, pivot, improved = candidate_cost, candidate_axis, candidate_pivot, True
+                    cost, joint, improved = candidate_cost, candidate, True
                     break
-    return cost, axis, pivot
+    return cost, joint
 
 
-def _refine_slide(cost: float, axis: FloatArray, score: Callable[[FloatArray], float],
-                  config: DepthProposalConfig) -> tuple[float, FloatArray]:
-    """The slide direction tilted about two directions perpendicular to it while that lowers the
-    cost: coordinate descent over ``config.hinge_refine_steps_deg``."""
-    for step_deg in config.hinge_refine_steps_deg:
-        improved = True
-        while improved:
-            improved = False
-            first = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
-            first /= np.linalg.norm(first)
-            for about in (first, np.cross(axis, first)):
-                for sign in (1.0, -1.0):
-                    candidate = Rotation.from_rotvec(np.deg2rad(sign * step_deg) * about).apply(axis)
-                    candidate_cost = score(candidate)
-                    if candidate_cost < cost:
-                        cost, axis, improved = candidate_cost, candidate, True
-                        break
-                if improved:
-                    break
-    return cost, axis
+def _turned(axis: FloatArray, about: FloatArray, degrees: float) -> FloatArray:
+    return Rotation.from_rotvec(np.deg2rad(degrees) * about).apply(axis)
+
+
+def _hinge_neighbours(normal: FloatArray, config: DepthProposalConfig):
+    """The hinge line turned within the front's plane (about its normal) and shifted across it by
+    the k-th of ``config.hinge_refine_steps_deg`` / ``_m``. The hypotheses' hinge lines follow the
+    principal axes of the surface that left, which tilt when that surface is not a rectangle aligned
+    with the door's edges, and sit on a 3 cm grid of offsets (measured on mw_door_00: 8.5 deg, 2.2 cm)."""
+    if len(config.hinge_refine_steps_deg) != len(config.hinge_refine_steps_m):
+        raise ValueError("hinge_refine_steps_deg and hinge_refine_steps_m need one entry per step")
+
+    def neighbours(axis: FloatArray, pivot: FloatArray | None, k: int) -> list[tuple[FloatArray, FloatArray | None]]:
+        step_deg, step_m = config.hinge_refine_steps_deg[k], config.hinge_refine_steps_m[k]
+        across = np.cross(normal, axis)
+        return ([(_turned(axis, normal, sign * step_deg), pivot) for sign in (1, -1)]
+                + [(axis, pivot + sign * step_m * across) for sign in (1, -1)])
+
+    return neighbours
+
+
+def _slide_neighbours(config: DepthProposalConfig):
+    """The slide direction tilted about two directions perpendicular to it by the k-th of
+    ``config.hinge_refine_steps_deg``."""
+
+    def neighbours(axis: FloatArray, pivot: FloatArray | None, k: int) -> list[tuple[FloatArray, FloatArray | None]]:
+        first = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
+        first /= np.linalg.norm(first)
+        step = config.hinge_refine_steps_deg[k]
+        return [(_turned(axis, about, sign * step), None) for about in (first, np.cross(axis, first)) for sign in (1, -1)]
+
+    return neighbours
 
 
 def _hypotheses(p: FloatArray, normal: FloatArray, u_axis: FloatArray, v_axis: FloatArray,
