@@ -41,7 +41,7 @@ from funrec.parts.articulation import (
     fit_part,
 )
 from funrec.parts.camera_lock import CameraLockConfig, unlock_camera
-from funrec.parts.depth_proposal import DepthProposalConfig, proposal_tracks, propose_part
+from funrec.parts.depth_proposal import DepthProposal, DepthProposalConfig, proposal_tracks, propose_part
 from funrec.parts.fragment_tracks import WindowTracks, join_windows, sub_capture, sub_trajectory, track_window
 from funrec.parts.fragments import FragmentConfig, find_fragments, fragments_from_spans, motion_span
 from funrec.parts.joint_type import JointTypeConfig, choose_joint_type
@@ -108,6 +108,14 @@ class ReconstructConfig:
     articulation, depth proposals, part motion and masks as capture masks are fed: a rigid
     textured arm is otherwise the most trackable moving thing in the video, and its tracks become
     a part. Detected again with the parts known for fusion and affordances. Off: ablation."""
+    hand_recheck_fraction: float = 0.25
+    """Hands-first masks label a depth proposal's own part when more than this fraction of the part's
+    points that the depth sees in place fall inside the hand mask (in ``hand_recheck_frames`` frames);
+    hands are then detected again in the span with the proposal's motion known and the proposal made
+    again. Right masks label ~0 (a hand in front of the part hides its points); on plain_rev_oven_00
+    the door swinging towards the camera was labelled hand over nearly all of it in 10+ frames."""
+    hand_recheck_frames: int = 3
+    """... in at least this many frames (one or two frames of a badly placed proposal do not count)."""
     use_object_masks: bool = True
     """Use the capture's interacted-object masks when it has them."""
     align_fragments: bool = True
@@ -245,7 +253,7 @@ class FragmentParts:
 
 def _fragment_parts(windows: list[WindowTracks], evidence: InteractionEvidence | None, config: ReconstructConfig,
                     change: npt.NDArray[np.float64] | None = None, capture: Capture | None = None,
-                    trajectory: CameraTrajectory | None = None) -> FragmentParts:
+                    trajectory: CameraTrajectory | None = None, hands_detected: bool = False) -> FragmentParts:
     """Stage 3 on each dynamic fragment's tracks: the best ``parts_per_fragment`` parts of each.
     Without mask ``evidence``, the parts are ranked by size x scene change while they move
     (``change``, (F,) per frame pair of the capture; :func:`_motion_scene_change`). Where the
@@ -257,7 +265,7 @@ def _fragment_parts(windows: list[WindowTracks], evidence: InteractionEvidence |
         if evidence is None and change is not None:
             parts.sort(key=lambda p: -p.size_score * _motion_scene_change(p, window.first, change))
         if (not parts or _challenge(capture, config)) and capture is not None and trajectory is not None:
-            proposed = _depth_part(window, capture, trajectory, config, parts[0] if parts else None)
+            proposed = _depth_part(window, capture, trajectory, config, parts[0] if parts else None, hands_detected)
             if proposed is not None:
                 if parts:
                     log.info("fragment %d: depth's %s replaces the tracks' %s", k, proposed[1].joint_type,
@@ -284,15 +292,26 @@ def _challenge(capture: Capture | None, config: ReconstructConfig) -> bool:
 
 
 def _depth_part(window: WindowTracks, capture: Capture, trajectory: CameraTrajectory, config: ReconstructConfig,
-                rival: PartEstimate | None = None) -> tuple[WindowTracks, PartEstimate] | None:
+                rival: PartEstimate | None = None, hands_detected: bool = False) -> tuple[WindowTracks, PartEstimate] | None:
     """A part proposed from the window's depth: the window with the part's tracks appended, and
     the part fitted to them (frames and track indices local to the window). Where the ``rival``
     (the tracks' part) is a slide and depth's best hypothesis is a slide too, the rival's slide on
-    depth's surface. None when depth proposes nothing, or the rival holds."""
+    depth's surface. None when depth proposes nothing, or the rival holds. With ``hands_detected``
+    (the capture's hand masks came from the hands-first detection), a proposal whose own surface
+    they label hand is made again with hands detected knowing its motion."""
     span, poses = sub_capture(capture, window.first, window.last), sub_trajectory(trajectory, window.first, window.last)
     hand = (lambda frame: span.mask("hand", frame)) if span.has_hand_masks else None
     joint = None if rival is None else (rival.joint_type, rival.axis_world, rival.pivot_world)
     proposal = propose_part(span, poses, hand, config.depth_proposal, joint)
+    if proposal is not None and hands_detected and _hand_labels_part(proposal, span, poses, config):
+        # hands detected before any part was known take a part moving towards the camera for the arm (a
+        # drop-down oven door: plain_rev_oven_00 axis 9.4 deg off, range 107 deg for 74): detected again with
+        # the proposed part's motion known, its pixels are explained by it and stay in the depth
+        hands = detect_hands(span, poses, (_proposed_part(proposal),), (),
+                             dataclasses.replace(config.affordances.hands, use_capture_masks=False))
+        log.info("depth proposal: hands detected again in frames %d-%d with the proposed %s known",
+                 window.first, window.last, proposal.joint_type)
+        proposal = propose_part(span, poses, lambda frame: hands.mask(frame), config.depth_proposal, joint)
     if proposal is None:
         return None
     if proposal.rival_held and (rival is None or proposal.joint_type != rival.joint_type or proposal.joint_type == "revolute"):
@@ -309,6 +328,31 @@ def _depth_part(window: WindowTracks, capture: Capture, trajectory: CameraTrajec
     if part is None:
         return None
     return WindowTracks(window.first, window.last, tracks), part
+
+
+def _hand_labels_part(proposal: DepthProposal, span: Capture, poses: CameraTrajectory, config: ReconstructConfig) -> bool:
+    """Whether the span's hand masks label the proposed part itself: in at least
+    ``hand_recheck_frames`` frames, more than ``hand_recheck_fraction`` of the part's points that
+    the depth sees where the joint puts them fall inside the hand mask. A hand in front of the part
+    hides its points (the depth there is nearer), so right masks give ~0 (mask edges only)."""
+    tracks = proposal_tracks(proposal, span, poses)
+    labelled = 0
+    for frame in range(len(span)):
+        mask = span.mask("hand", frame)
+        seen = np.flatnonzero(tracks.visible[frame])
+        if mask is None or len(seen) < config.depth_proposal.min_points:
+            continue
+        uv = np.rint(tracks.uv[frame, seen]).astype(int)
+        if mask[uv[:, 1], uv[:, 0]].mean() > config.hand_recheck_fraction:
+            labelled += 1
+    return labelled >= config.hand_recheck_frames
+
+
+def _proposed_part(proposal: DepthProposal) -> ArticulatedPart:
+    """The proposal as an articulated part over its span's frames (for the hand detector)."""
+    frames = np.arange(len(proposal.states))
+    return make_part("proposed", proposal.joint_type, proposal.axis_world, proposal.pivot_world, frames,
+                     proposal.states, (float(proposal.states.min()), float(proposal.states.max())))
 
 
 def _part_span(windows: list[WindowTracks], found: list[tuple[int, PartEstimate]], owner: list[int], index: int,
@@ -463,12 +507,12 @@ def _reconstruct(capture_dir: str | Path, out_dir: str | Path, config: Reconstru
             for k in range(len(fragments.dynamic))
         ]
         outcome = timed("articulation", _fragment_parts, windows, _evidence(capture, config), config, change, capture,
-                        trajectory)
+                        trajectory, capture is not observed)
         unlocked = unlock_camera(trajectory, outcome.windows, outcome.found, config.camera_lock)
         if unlocked is not None:  # the camera had followed a part: poses and tracks corrected, parts found again
             trajectory, windows = unlocked
             outcome = timed("articulation", _fragment_parts, windows, _evidence(capture, config), config, change, capture,
-                            trajectory)
+                            trajectory, capture is not observed)
         windows = outcome.windows
         # a part proposed from depth already beat the other joint type there (with the surfaces that
         # arrived in front): the tracks-based check would overturn it on its own points alone (measured on

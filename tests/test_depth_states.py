@@ -178,3 +178,34 @@ def test_depth_replaces_a_wrong_rival_joint_and_keeps_a_right_one() -> None:
     assert replaced.rival_held is False
     kept = propose_part(capture, trajectory, rival=("revolute", AXIS.copy(), HINGE.copy()))
     assert kept is not None and kept.rival_held and kept.joint_type == "revolute"  # depth confirms the hinge
+
+
+def test_hand_masks_that_label_the_proposed_part_itself_are_caught() -> None:
+    """Hands detected before any part is known take a part that swings towards the camera for the
+    arm (plain_rev_oven_00). The pipeline then detects them again knowing the proposal's motion
+    (funrec.pipeline._hand_labels_part decides). Masks on the door's own pixels are caught; a
+    hand in front of the door, masked, is not: the door's points behind it are hidden, not seen."""
+    from funrec.parts.depth_proposal import propose_part
+    from funrec.pipeline import ReconstructConfig, _hand_labels_part
+
+    true, capture, trajectory = _opening_door()
+    proposal = propose_part(capture, trajectory)
+    assert proposal is not None
+    F = len(true)
+    door = [_door_depth(s) < WALL_Z for s in true]
+    blob = np.zeros((120, 160), dtype=bool)
+    blob[40:80, 60:100] = True  # a hand 0.8 m from the camera, in front of the leaf while it opens
+    hand_in_front = [np.where(blob, 0.8, d) if 8 <= f <= 20 else d for f, d in enumerate(_door_depth(s) for s in true)]
+
+    def fake(depth: list[np.ndarray], masks: list[np.ndarray]) -> object:
+        return type("FakeCapture", (), {"__len__": lambda self: F, "depth_m": lambda self, f: depth[f],
+                                        "mask": lambda self, kind, f: masks[f],
+                                        "intrinsics": SimpleNamespace(K=K, width=160)})()
+
+    on_door = [door[f] if 8 <= f <= 20 else np.zeros_like(door[f]) for f in range(F)]
+    in_front = [blob if 8 <= f <= 20 else np.zeros_like(blob) for f in range(F)]
+    depth = [capture.depth_m(f) for f in range(F)]
+    config = ReconstructConfig()
+    assert _hand_labels_part(proposal, fake(depth, on_door), trajectory, config)
+    assert not _hand_labels_part(proposal, fake(hand_in_front, in_front), trajectory, config)
+    assert not _hand_labels_part(proposal, fake(depth, [np.zeros_like(blob)] * F), trajectory, config)
