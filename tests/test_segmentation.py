@@ -226,3 +226,33 @@ def test_segment_parts_iou_with_estimated_inputs(estimated_run: EstimatedRun) ->
     miou, count = mean_iou(estimated_run.masks, estimated_run.gt, estimated_run.capture)
     assert count >= 20, f"{name}: only {count} tracked frames show the part"
     assert miou >= ESTIMATED_MIN_MIOU[name], f"{name}: mIoU {100 * miou:.1f} below {100 * ESTIMATED_MIN_MIOU[name]:.0f}"
+
+
+def test_stray_model_voxels_in_front_of_the_part_do_not_cut_holes_in_its_mask() -> None:
+    """A part model carries stray voxels (static surface that keyframes at rest labelled part). A
+    sheet of them 0.5 m in front of a 0.4 x 0.4 m panel must not hide the panel in a frame that sees
+    the panel: its mask is the panel's pixels (IoU > 0.95), not the strays' silhouette; a hand in
+    front of the panel stays out of the mask."""
+    from funrec.surfaces.segmentation import _propagate, _View
+
+    config = SegmentationConfig()
+    K = np.array([[300.0, 0.0, 159.5], [0.0, 300.0, 119.5], [0.0, 0.0, 1.0]])
+    H, W = 240, 320
+    depth = np.full((H, W), 3.0, dtype=np.float32)  # a wall 3 m away
+    u, v = np.meshgrid(np.arange(W), np.arange(H))
+    x, y = (u - K[0, 2]) / K[0, 0] * 1.5, (v - K[1, 2]) / K[1, 1] * 1.5
+    panel = (np.abs(x) < 0.2) & (np.abs(y) < 0.2)
+    depth[panel] = 1.5
+    hand = (np.abs(x - 0.1) < 0.05) & (np.abs(y) < 0.05)
+    depth[hand] = 0.8
+    step = config.voxel_m
+    a, b = np.meshgrid(np.arange(-0.2, 0.2, step), np.arange(-0.2, 0.2, step))
+    p_panel = np.stack([a.ravel(), b.ravel(), np.full(a.size, 1.5)])
+    c, e = np.meshgrid(np.arange(-0.1, 0.1, step), np.arange(-0.1, 0.1, step))
+    p_stray = np.stack([c.ravel() * 0.66, e.ravel() * 0.66, np.full(c.size, 1.0)])  # covers the panel's middle
+    p_part = np.concatenate([p_panel, p_stray], axis=1).astype(np.float32)
+    mask = _propagate(_View(depth, np.zeros((H, W), dtype=bool)), p_part, np.eye(4), K, config)
+    truth = panel & ~hand
+    iou = (mask & truth).sum() / (mask | truth).sum()
+    assert iou > 0.95, iou
+    assert not (mask & hand).any()
