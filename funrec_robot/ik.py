@@ -19,6 +19,7 @@ import numpy.typing as npt
 from funrec.errors import PlanningError
 from funrec.typed import FloatArray, IntArray
 from funrec_robot.budget import check_time_limit
+from funrec_robot.collision_limit import BoxedCollisionLimit
 from funrec_robot.robot import RobotDescription
 from funrec_robot.scene import bodies_geoms, floor_geoms, gravity_load, subtree_bodies
 from funrec_robot.sim_model import ROBOT_PREFIX, apply_couplings, robot_indices
@@ -275,7 +276,7 @@ class WholeBodyIK:
         for pairs, distance in zip(groups, distances):
             if pairs:
                 self.limits.append(
-                    mink.CollisionAvoidanceLimit(
+                    BoxedCollisionLimit(
                         model,
                         pairs,
                         gain=config.collision_gain,
