@@ -27,7 +27,7 @@ from funrec_robot.feasibility import (
     first_blocked_state,
     resting_force,
 )
-from funrec_robot.grasp import grasp_candidates, release_command
+from funrec_robot.grasp import grasp_candidates, graspable_tilts, release_command
 from funrec_robot.grasp_frames import T_world_grasp_canonical, grasp_free_axis
 from funrec_robot.plan_config import PlanConfig
 from funrec_robot.plan_file import Plan, Segment, sha256_file
@@ -281,6 +281,12 @@ def _handle_path(
                 # The gripper turns on the bar to let the door go sideways off a finger (GraspConfig.fall_roll).
                 config = replace(config, grasp=replace(config.grasp, fall_state=target_state))
             candidates = grasp_candidates(robot, task, states, geometry, r_max, config.grasp)
+    if not candidates and not graspable_tilts(robot, task, geometry, config.grasp):
+        size = "" if task.handle_width is None else f" ({1000 * task.handle_width:.0f} mm thick)"
+        raise PlanningError(
+            f"part '{task.part}': the gripper cannot take the handle{size} at any tilt: its bar meets the palm or "
+            "the fingertips meet the part's front"
+        )
     if not candidates:
         raise PlanningError(
             f"part '{task.part}': the handle path leaves the arm's vertical reach from the shoulder "
