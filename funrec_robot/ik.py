@@ -425,6 +425,7 @@ class WholeBodyIK:
         q_posture: npt.ArrayLike,
         fingers: float,
         unload: bool = False,
+        give_up: tuple[float, float] | None = None,
     ) -> IKResult:
         """Follow a path of targets, each solved from the previous solution.
 
@@ -438,6 +439,9 @@ class WholeBodyIK:
             q_posture: (N, nq) posture reference per target (its base joints are used).
             fingers: finger joint position held throughout, m or rad.
             unload: unload the arm against gravity at each target (see :meth:`solve`).
+            give_up: (m, rad) residuals beyond which a target counts as missed: the path stops there (the
+                result then has fewer rows than targets; a path with a missed target is no plan, and each
+                further target, solved from a miss, costs the full iteration limit).
         """
         T_world_grasp = np.asarray(T_world_grasp, dtype=np.float64)
         states = np.asarray(part_states, dtype=np.float64)
@@ -451,6 +455,8 @@ class WholeBodyIK:
             out.append(q)
             pos_err.append(e_p)
             rot_err.append(e_r)
+            if give_up is not None and (e_p > give_up[0] or e_r > give_up[1]):
+                break
         return IKResult(np.array(out), np.array(pos_err), np.array(rot_err))
 
 
