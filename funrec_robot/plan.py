@@ -20,6 +20,7 @@ import numpy as np
 from funrec.errors import PlanningError
 from funrec.typed import FloatArray
 from funrec_robot.budget import TimeLimitSpent, check_time_limit, plan_time_limit
+from funrec_robot.errors import Refusal
 from funrec_robot.feasibility import (
     GravityOverload,
     dynamic_limits,
@@ -283,7 +284,7 @@ def _handle_path(
             candidates = grasp_candidates(robot, task, states, geometry, r_max, config.grasp)
     if not candidates and not graspable_tilts(robot, task, geometry, config.grasp):
         size = "" if task.handle_width is None else f" ({1000 * task.handle_width:.0f} mm thick)"
-        raise PlanningError(
+        raise Refusal(
             f"part '{task.part}': the gripper cannot take the handle{size} at any tilt: its bar meets the palm or "
             "the fingertips meet the part's front"
         )
@@ -528,7 +529,7 @@ def _plan_interaction(robot: RobotDescription, scene_xml: str | Path, task: Arti
     geometry = measure_robot(robot)
     refusal = reach_refusal(robot, geometry, task)
     if refusal is not None:
-        raise PlanningError(f"part '{task.part}': {refusal}")
+        raise Refusal(f"part '{task.part}': {refusal}")
     if geometry.lift_range is not None:  # a torso or mast starts at the handle's height; the IK moves it on
         robot = lifted(robot, geometry, handle_height(task), config.ik.limit_margin)
         geometry = measure_robot(robot)
