@@ -67,6 +67,10 @@ class IKConfig:
     """Smallest gap kept between the arm and the scene or the robot's body, m."""
     gripper_collision_distance: float = 0.0015
     """Smallest gap kept between the gripper and the scene, m (it works millimetres from the part's front)."""
+    wrist_collision_distance: float = 0.005
+    """Smallest gap kept between the last arm link with the hand and the arm's links before the wrist, m
+    (TIAGo flexing its wrist by 77 degrees at the end of a door's swing put its wrist into its forearm: the
+    servo then pushed against the contact beyond its effort limit)."""
     collision_detection: float = 0.1
     """Gap below which a pair of geoms enters the QP, m."""
     collision_gain: float = 0.5
@@ -272,7 +276,8 @@ class WholeBodyIK:
         groups = self._collision_pairs(
             np.atleast_2d(np.asarray(region_world, dtype=np.float64)), np.asarray(allowed_geoms, dtype=np.int64)
         )
-        distances = (config.collision_distance, config.arm_collision_distance, config.gripper_collision_distance)
+        distances = (config.collision_distance, config.arm_collision_distance, config.gripper_collision_distance,
+                     config.wrist_collision_distance)
         for pairs, distance in zip(groups, distances):
             if pairs:
                 self.limits.append(
@@ -298,7 +303,8 @@ class WholeBodyIK:
     def _collision_pairs(
         self, region: FloatArray, allowed: IntArray
     ) -> tuple[list[tuple[list[int], list[int]]], ...]:
-        """Pairs of (base and torso vs scene), (arm vs scene, forearm vs body), (gripper vs scene but the handle)."""
+        """Pairs of (base and torso vs scene), (arm vs scene, forearm vs body), (gripper vs scene but the handle),
+        (hand and last arm link vs the arm before the wrist; mink leaves out parent and child links)."""
         model, robot = self.model, self.robot
         collides = (model.geom_contype != 0) | (model.geom_conaffinity != 0)
         robot_geoms = bodies_geoms(model, self.indices.bodies)
@@ -322,7 +328,13 @@ class WholeBodyIK:
         body_pairs = [(body.tolist(), scene.tolist())]
         arm_pairs = [(arm.tolist(), scene.tolist()), (np.setdiff1d(forearm, gripper).tolist(), body.tolist())]
         gripper_pairs = [(gripper.tolist(), np.setdiff1d(scene, allowed).tolist()), (gripper.tolist(), body.tolist())]
-        return tuple([(a, b) for a, b in pairs if a and b] for pairs in (body_pairs, arm_pairs, gripper_pairs))
+        hand = np.intersect1d(robot_geoms, bodies_geoms(model, subtree_bodies(model, self._joint_body(robot.arm_joints[-1]))))
+        wrist = bodies_geoms(model, subtree_bodies(model, self._joint_body(robot.arm_joints[max(len(robot.arm_joints) - 2, 0)])))
+        wrist_pairs = [(hand.tolist(), np.setdiff1d(arm, wrist).tolist())]
+        return tuple([(a, b) for a, b in pairs if a and b] for pairs in (body_pairs, arm_pairs, gripper_pairs, wrist_pairs))
+
+    def _joint_body(self, joint: str) -> int:
+        return int(self.model.jnt_bodyid[self.model.joint(ROBOT_PREFIX + joint).id])
 
     def full_q(self, q: npt.ArrayLike, part_state: float, fingers: float) -> FloatArray:
         """(model.nq,) model configuration for planning joints ``q``, the part at ``part_state`` and the finger
