@@ -48,7 +48,8 @@ class UnknownNameError(RobotDescriptionError):
 
 class Refusal(PlanningError):
     """The robot cannot do the task at all, decided before any optimisation: the handle is outside its reach
-    band (``reach.reach_refusal``) or no grasp tilt lets its gripper take the handle. The bench counts such a
+    band (``reach.reach_refusal``), no grasp tilt lets its gripper take the handle, or every tilt puts the
+    handle path's wrist targets beyond the arm's reach above or below its shoulder. The bench counts such a
     part as refused, not as a failure among the parts the robot accepts."""
 
 

@@ -289,7 +289,7 @@ def _handle_path(
             "the fingertips meet the part's front"
         )
     if not candidates:
-        raise PlanningError(
+        raise Refusal(
             f"part '{task.part}': the handle path leaves the arm's vertical reach from the shoulder "
             f"({geometry.p_base_shoulder[2]:.2f} m high) whatever the grasp tilt"
         )
