@@ -180,3 +180,19 @@ def test_tiagos_wrist_keeps_off_its_forearm_through_a_microwave_door(tiago, tmp_
         mujoco.mj_kinematics(model, data)
         closest = min(closest, min(mujoco.mj_geomDistance(model, data, a, b, 0.1, None) for a, b in pairs))
     assert closest > 0.004
+
+
+def test_the_grasp_site_is_placed_once_per_robot_model(tiago) -> None:
+    """Each model build placed the grasp site by compiling the robot alone once more; the placement is kept per
+    model and end-effector, and a build from it puts the site where a fresh one does."""
+    from funrec_robot import sim_model
+
+    tiago, _ = tiago
+    sim_model._GRASP_SITES.clear()
+    fresh = sim_model.build_mujoco_model(tiago)
+    assert len(sim_model._GRASP_SITES) == 1
+    again = sim_model.build_mujoco_model(tiago)
+    assert len(sim_model._GRASP_SITES) == 1
+    site = sim_model.robot_indices(tiago, fresh).grasp_site
+    np.testing.assert_array_equal(again.site_pos[site], fresh.site_pos[site])
+    np.testing.assert_array_equal(again.site_quat[site], fresh.site_quat[site])
