@@ -68,9 +68,10 @@ class IKConfig:
     gripper_collision_distance: float = 0.0015
     """Smallest gap kept between the gripper and the scene, m (it works millimetres from the part's front)."""
     wrist_collision_distance: float = 0.005
-    """Smallest gap kept between the last arm link with the hand and the arm's links before the wrist, m
-    (TIAGo flexing its wrist by 77 degrees at the end of a door's swing put its wrist into its forearm: the
-    servo then pushed against the contact beyond its effort limit)."""
+    """Smallest gap kept between the last arm link with the hand and the arm's links before the wrist, and between
+    the upper arm and the body, m (TIAGo flexing its wrist by 77 degrees at the end of a door's swing put its wrist
+    into its forearm, Fetch's shoulder lift link met its torso: the servos then pushed against the contact beyond
+    their effort limits)."""
     collision_detection: float = 0.1
     """Gap below which a pair of geoms enters the QP, m."""
     collision_gain: float = 0.5
@@ -304,7 +305,8 @@ class WholeBodyIK:
         self, region: FloatArray, allowed: IntArray
     ) -> tuple[list[tuple[list[int], list[int]]], ...]:
         """Pairs of (base and torso vs scene), (arm vs scene, forearm vs body), (gripper vs scene but the handle),
-        (hand and last arm link vs the arm before the wrist; mink leaves out parent and child links)."""
+        (hand and last arm link vs the arm before the wrist, upper arm vs body; mink leaves out parent and child
+        links)."""
         model, robot = self.model, self.robot
         collides = (model.geom_contype != 0) | (model.geom_conaffinity != 0)
         robot_geoms = bodies_geoms(model, self.indices.bodies)
@@ -330,7 +332,9 @@ class WholeBodyIK:
         gripper_pairs = [(gripper.tolist(), np.setdiff1d(scene, allowed).tolist()), (gripper.tolist(), body.tolist())]
         hand = np.intersect1d(robot_geoms, bodies_geoms(model, subtree_bodies(model, self._joint_body(robot.arm_joints[-1]))))
         wrist = bodies_geoms(model, subtree_bodies(model, self._joint_body(robot.arm_joints[max(len(robot.arm_joints) - 2, 0)])))
-        wrist_pairs = [(hand.tolist(), np.setdiff1d(arm, wrist).tolist())]
+        upper = bodies_geoms(model, subtree_bodies(model, self._joint_body(robot.arm_joints[min(1, len(robot.arm_joints) - 1)])))
+        upper_arm = np.setdiff1d(np.intersect1d(robot_geoms, upper), np.union1d(forearm, gripper))
+        wrist_pairs = [(hand.tolist(), np.setdiff1d(arm, wrist).tolist()), (upper_arm.tolist(), body.tolist())]
         return tuple([(a, b) for a, b in pairs if a and b] for pairs in (body_pairs, arm_pairs, gripper_pairs, wrist_pairs))
 
     def _joint_body(self, joint: str) -> int:
