@@ -6,7 +6,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +15,7 @@ import numpy as np
 from funrec.errors import FunrecError
 from funrec.formats.ground_truth import read_ground_truth
 from funrec_robot.check import CheckConfig, T_scene_plan_from_gt, check_plan
+from funrec_robot.errors import Refusal
 from funrec_robot.plan import PlanConfig, plan_interaction
 from funrec_robot.plan_file import write_plan
 from funrec_robot.retime import retime_path
@@ -23,6 +24,9 @@ from funrec_robot.sim_model import build_mujoco_model
 from funrec_robot.task_sources import task_from_ground_truth, task_from_twin
 
 log = logging.getLogger(__name__)
+
+DEFAULT_FAMILY = "textured"
+"""Family of a capture whose gt.json names none (the textured bench predates families)."""
 
 
 @dataclass(frozen=True)
@@ -55,6 +59,11 @@ class BenchRow:
     """Base stops of the plan (0 if not planned)."""
     duration: float
     """Plan duration, s."""
+    refused: bool = False
+    """The robot refused the part before any optimisation (``errors.Refusal``: out of its reach band, or a
+    handle its gripper cannot take); the other rows are the parts it accepts."""
+    family: str = DEFAULT_FAMILY
+    """Bench family of the capture (``generator.spec.family`` in its gt.json)."""
 
 
 def bench_suite(
@@ -97,18 +106,28 @@ def bench_suite(
         if only and case not in only:
             continue
         gt = read_ground_truth(gt_json.parent)
+        family = _family(gt.extra)
         case_rows = (_ground_truth_rows if twins is None else _twin_rows)(
             case, gt, robot, target, plan_config, check_config, plans_dir, None if twins is None else Path(twins) / case)
         for row in case_rows:
+            row = replace(row, family=family)
             rows.append(row)
             if progress is not None:
                 progress(row)
     return tuple(rows)
 
 
-def _not_planned(case: str, part: str, joint_type: str, why: str, clock: float, cpu: float) -> BenchRow:
+def _family(extra: dict[str, Any]) -> str:
+    """The bench family a ground truth's generator spec names (``DEFAULT_FAMILY`` if none)."""
+    generator = extra.get("generator")
+    spec = generator.get("spec") if isinstance(generator, dict) else None
+    family = spec.get("family") if isinstance(spec, dict) else None
+    return family if isinstance(family, str) and family else DEFAULT_FAMILY
+
+
+def _not_planned(case: str, part: str, joint_type: str, why: str, clock: float, cpu: float, refused: bool = False) -> BenchRow:
     return BenchRow(case, part, joint_type, False, False, why, time.perf_counter() - clock, time.process_time() - cpu,
-                    np.nan, 0, np.nan, 0, 0.0)
+                    np.nan, 0, np.nan, 0, 0.0, refused)
 
 
 def _checked(case: str, part: str, plan: Any, report: Any, clock: float, cpu: float) -> BenchRow:
@@ -127,7 +146,7 @@ def _ground_truth_rows(case, gt, robot, target, plan_config, check_config, plans
             task = task_from_ground_truth(gt.root, name, model)
             plan = plan_interaction(robot, gt.scene_xml, task, target, config=plan_config, model=model)
         except FunrecError as exc:
-            yield _not_planned(case, name, gt_part.part.joint_type, str(exc), clock, cpu)
+            yield _not_planned(case, name, gt_part.part.joint_type, str(exc), clock, cpu, isinstance(exc, Refusal))
             continue
         plan_time, plan_cpu = time.perf_counter() - clock, time.process_time() - cpu
         if plans_dir is not None:
@@ -177,21 +196,34 @@ def _twin_rows(case, gt, robot, target, plan_config, check_config, plans_dir, tw
 
 
 def summarize(rows: Sequence[BenchRow]) -> dict[str, Any]:
-    """Success rate, median plan time, handle forces and collisions over bench rows."""
+    """Success rate, plan times, handle forces and collisions over bench rows, overall and per family."""
+    out = _summary(rows)
+    out["families"] = {family: _summary([r for r in rows if r.family == family]) for family in sorted({r.family for r in rows})}
+    out["rows"] = [asdict(r) for r in rows]
+    return out
+
+
+def _summary(rows: Sequence[BenchRow]) -> dict[str, Any]:
     planned = [r for r in rows if r.planned]
     forces = np.array([r.peak_handle_force for r in planned]) if planned else np.zeros(0)
+    cpu = np.array([r.plan_cpu_time for r in rows])
+    accepted = sum(not r.refused for r in rows)
+    passed = sum(r.passed for r in rows)
     return {
         "parts": len(rows),
+        "refused": len(rows) - accepted,
+        "accepted": accepted,
         "planned": len(planned),
-        "passed": sum(r.passed for r in rows),
-        "success_rate": sum(r.passed for r in rows) / max(len(rows), 1),
+        "passed": passed,
+        "success_rate": passed / max(len(rows), 1),
+        "success_rate_accepted": passed / max(accepted, 1),
         "median_plan_time_s": float(np.median([r.plan_time for r in rows])) if rows else float("nan"),
-        "median_plan_cpu_time_s": float(np.median([r.plan_cpu_time for r in rows])) if rows else float("nan"),
+        "median_plan_cpu_time_s": float(np.median(cpu)) if rows else float("nan"),
+        "p95_plan_cpu_time_s": float(np.percentile(cpu, 95)) if rows else float("nan"),
         "median_plan_time_passed_s": float(np.median([r.plan_time for r in rows if r.passed])) if any(r.passed for r in rows) else float("nan"),
         "median_peak_handle_force_N": float(np.median(forces)) if len(forces) else float("nan"),
         "max_peak_handle_force_N": float(np.max(forces)) if len(forces) else float("nan"),
         "plans_with_collisions": sum(r.collisions > 0 for r in planned),
-        "rows": [asdict(r) for r in rows],
     }
 
 

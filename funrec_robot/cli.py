@@ -139,18 +139,24 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     from funrec_robot.catalog import resolve_robot
 
     def show(row: Any) -> None:
-        status = "PASS" if row.passed else ("FAIL" if row.planned else "NO PLAN")
-        print(f"{row.case:24s} {row.part:8s} {status:7s} plan {row.plan_time:5.2f} s  force {row.peak_handle_force:5.1f} N  {row.failure[:110]}")
+        status = "PASS" if row.passed else ("FAIL" if row.planned else ("REFUSED" if row.refused else "NO PLAN"))
+        print(f"{row.case:24s} {row.part:8s} {status:7s} plan {row.plan_cpu_time:5.2f} s CPU  force {row.peak_handle_force:5.1f} N  "
+              f"{row.failure[:110]}")
 
     rows = bench_suite(args.suite, resolve_robot(args.robot), args.to, args.only or (), plans_dir=args.plans, progress=show,
                        twins=args.twins)
     summary = summarize(rows)
     if args.output:
         Path(args.output).write_text(json.dumps(summary, indent=1) + "\n")
+    for family, part in summary["families"].items():
+        print(f"  {family:10s} {part['passed']}/{part['accepted']} accepted passed, {part['refused']} refused; "
+              f"plan CPU median {part['median_plan_cpu_time_s']:.2f} s, p95 {part['p95_plan_cpu_time_s']:.2f} s")
     print(
-        f"{summary['passed']}/{summary['parts']} passed ({summary['planned']} planned); median plan time "
-        f"{summary['median_plan_time_s']:.2f} s; peak handle force median {summary['median_peak_handle_force_N']:.1f} N, "
-        f"max {summary['max_peak_handle_force_N']:.1f} N; plans with collisions {summary['plans_with_collisions']}"
+        f"{summary['passed']}/{summary['parts']} passed ({summary['planned']} planned; {summary['passed']}/{summary['accepted']} "
+        f"of the parts accepted, {summary['refused']} refused); plan CPU time median {summary['median_plan_cpu_time_s']:.2f} s, "
+        f"p95 {summary['p95_plan_cpu_time_s']:.2f} s (wall median {summary['median_plan_time_s']:.2f} s); peak handle force "
+        f"median {summary['median_peak_handle_force_N']:.1f} N, max {summary['max_peak_handle_force_N']:.1f} N; "
+        f"plans with collisions {summary['plans_with_collisions']}"
     )
     return 0
 

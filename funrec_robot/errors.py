@@ -46,4 +46,11 @@ class UnknownNameError(RobotDescriptionError):
         super().__init__(path, f"{key}: {kind} '{name}' not in the model; valid {plural}: {format_names(self.valid)}")
 
 
-__all__ = ["RobotDescriptionError", "UnknownNameError", "format_names"]
+class Refusal(PlanningError):
+    """The robot cannot do the task at all, decided before any optimisation: the handle is outside its reach
+    band (``reach.reach_refusal``), no grasp tilt lets its gripper take the handle, or every tilt puts the
+    handle path's wrist targets beyond the arm's reach above or below its shoulder. The bench counts such a
+    part as refused, not as a failure among the parts the robot accepts."""
+
+
+__all__ = ["Refusal", "RobotDescriptionError", "UnknownNameError", "format_names"]

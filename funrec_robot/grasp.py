@@ -224,6 +224,20 @@ def offset_along_approach(T_world_grasp: FloatArray, distance: float) -> FloatAr
     return T
 
 
+def graspable_tilts(
+    robot: RobotDescription, task: ArticulationTask, geometry: RobotGeometry, config: GraspConfig
+) -> list[tuple[float, float, float, float]]:
+    """(tilt, opening command, holding command, depth) of the tilts at which the fingers take the handle clear of
+    the part's front and the palm (``grasp_depth``), in ``config.tilts`` order."""
+    out = []
+    for tilt in config.tilts:
+        opening, holding = opening_commands(robot, task, config, tilt)
+        depth = grasp_depth(task, geometry, opening, tilt, config)
+        if depth is not None:
+            out.append((tilt, opening, holding, depth))
+    return out
+
+
 def grasp_candidates(
     robot: RobotDescription,
     task: ArticulationTask,
@@ -236,11 +250,7 @@ def grasp_candidates(
     shoulder than ``tilt_deadband``; tilts whose fingers cannot clear the part's front, or that put a wrist
     target beyond ``r_max`` (m) above or below the shoulder, are left out."""
     scored = []
-    for tilt in config.tilts:
-        opening, holding = opening_commands(robot, task, config, tilt)
-        depth = grasp_depth(task, geometry, opening, tilt, config)
-        if depth is None:
-            continue
+    for tilt, opening, holding, depth in graspable_tilts(robot, task, geometry, config):
         frames = handle_frames(task, states, depth, tilt, config)
         wrist = frames[:, :3, 3] - frames[:, :3, 2] * geometry.wrist_to_grasp
         rise = float(np.max(np.abs(wrist[:, 2] - geometry.p_base_shoulder[2])))
@@ -259,6 +269,7 @@ __all__ = [
     "finger_half_opening",
     "grasp_candidates",
     "grasp_depth",
+    "graspable_tilts",
     "handle_frames",
     "offset_along_approach",
     "opening_commands",

@@ -19,6 +19,7 @@ import numpy.typing as npt
 from funrec.errors import PlanningError
 from funrec.typed import FloatArray, IntArray
 from funrec_robot.budget import check_time_limit
+from funrec_robot.collision_limit import BoxedCollisionLimit
 from funrec_robot.robot import RobotDescription
 from funrec_robot.scene import bodies_geoms, floor_geoms, gravity_load, subtree_bodies
 from funrec_robot.sim_model import ROBOT_PREFIX, apply_couplings, robot_indices
@@ -66,6 +67,11 @@ class IKConfig:
     """Smallest gap kept between the arm and the scene or the robot's body, m."""
     gripper_collision_distance: float = 0.0015
     """Smallest gap kept between the gripper and the scene, m (it works millimetres from the part's front)."""
+    wrist_collision_distance: float = 0.005
+    """Smallest gap kept between the last arm link with the hand and the arm's links before the wrist, and between
+    the upper arm and the body, m (TIAGo flexing its wrist by 77 degrees at the end of a door's swing put its wrist
+    into its forearm, Fetch's shoulder lift link met its torso: the servos then pushed against the contact beyond
+    their effort limits)."""
     collision_detection: float = 0.1
     """Gap below which a pair of geoms enters the QP, m."""
     collision_gain: float = 0.5
@@ -271,11 +277,12 @@ class WholeBodyIK:
         groups = self._collision_pairs(
             np.atleast_2d(np.asarray(region_world, dtype=np.float64)), np.asarray(allowed_geoms, dtype=np.int64)
         )
-        distances = (config.collision_distance, config.arm_collision_distance, config.gripper_collision_distance)
+        distances = (config.collision_distance, config.arm_collision_distance, config.gripper_collision_distance,
+                     config.wrist_collision_distance)
         for pairs, distance in zip(groups, distances):
             if pairs:
                 self.limits.append(
-                    mink.CollisionAvoidanceLimit(
+                    BoxedCollisionLimit(
                         model,
                         pairs,
                         gain=config.collision_gain,
@@ -297,7 +304,9 @@ class WholeBodyIK:
     def _collision_pairs(
         self, region: FloatArray, allowed: IntArray
     ) -> tuple[list[tuple[list[int], list[int]]], ...]:
-        """Pairs of (base and torso vs scene), (arm vs scene, forearm vs body), (gripper vs scene but the handle)."""
+        """Pairs of (base and torso vs scene), (arm vs scene, forearm vs body), (gripper vs scene but the handle),
+        (hand and last arm link vs the arm before the wrist, upper arm vs body; mink leaves out parent and child
+        links)."""
         model, robot = self.model, self.robot
         collides = (model.geom_contype != 0) | (model.geom_conaffinity != 0)
         robot_geoms = bodies_geoms(model, self.indices.bodies)
@@ -321,7 +330,15 @@ class WholeBodyIK:
         body_pairs = [(body.tolist(), scene.tolist())]
         arm_pairs = [(arm.tolist(), scene.tolist()), (np.setdiff1d(forearm, gripper).tolist(), body.tolist())]
         gripper_pairs = [(gripper.tolist(), np.setdiff1d(scene, allowed).tolist()), (gripper.tolist(), body.tolist())]
-        return tuple([(a, b) for a, b in pairs if a and b] for pairs in (body_pairs, arm_pairs, gripper_pairs))
+        hand = np.intersect1d(robot_geoms, bodies_geoms(model, subtree_bodies(model, self._joint_body(robot.arm_joints[-1]))))
+        wrist = bodies_geoms(model, subtree_bodies(model, self._joint_body(robot.arm_joints[max(len(robot.arm_joints) - 2, 0)])))
+        upper = bodies_geoms(model, subtree_bodies(model, self._joint_body(robot.arm_joints[min(1, len(robot.arm_joints) - 1)])))
+        upper_arm = np.setdiff1d(np.intersect1d(robot_geoms, upper), np.union1d(forearm, gripper))
+        wrist_pairs = [(hand.tolist(), np.setdiff1d(arm, wrist).tolist()), (upper_arm.tolist(), body.tolist())]
+        return tuple([(a, b) for a, b in pairs if a and b] for pairs in (body_pairs, arm_pairs, gripper_pairs, wrist_pairs))
+
+    def _joint_body(self, joint: str) -> int:
+        return int(self.model.jnt_bodyid[self.model.joint(ROBOT_PREFIX + joint).id])
 
     def full_q(self, q: npt.ArrayLike, part_state: float, fingers: float) -> FloatArray:
         """(model.nq,) model configuration for planning joints ``q``, the part at ``part_state`` and the finger
@@ -424,6 +441,7 @@ class WholeBodyIK:
         q_posture: npt.ArrayLike,
         fingers: float,
         unload: bool = False,
+        give_up: tuple[float, float] | None = None,
     ) -> IKResult:
         """Follow a path of targets, each solved from the previous solution.
 
@@ -437,6 +455,9 @@ class WholeBodyIK:
             q_posture: (N, nq) posture reference per target (its base joints are used).
             fingers: finger joint position held throughout, m or rad.
             unload: unload the arm against gravity at each target (see :meth:`solve`).
+            give_up: (m, rad) residuals beyond which a target counts as missed: the path stops there (the
+                result then has fewer rows than targets; a path with a missed target is no plan, and each
+                further target, solved from a miss, costs the full iteration limit).
         """
         T_world_grasp = np.asarray(T_world_grasp, dtype=np.float64)
         states = np.asarray(part_states, dtype=np.float64)
@@ -450,6 +471,8 @@ class WholeBodyIK:
             out.append(q)
             pos_err.append(e_p)
             rot_err.append(e_r)
+            if give_up is not None and (e_p > give_up[0] or e_r > give_up[1]):
+                break
         return IKResult(np.array(out), np.array(pos_err), np.array(rot_err))
 
 

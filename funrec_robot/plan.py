@@ -20,6 +20,7 @@ import numpy as np
 from funrec.errors import PlanningError
 from funrec.typed import FloatArray
 from funrec_robot.budget import TimeLimitSpent, check_time_limit, plan_time_limit
+from funrec_robot.errors import Refusal
 from funrec_robot.feasibility import (
     GravityOverload,
     dynamic_limits,
@@ -27,7 +28,7 @@ from funrec_robot.feasibility import (
     first_blocked_state,
     resting_force,
 )
-from funrec_robot.grasp import grasp_candidates, release_command
+from funrec_robot.grasp import grasp_candidates, graspable_tilts, release_command
 from funrec_robot.grasp_frames import T_world_grasp_canonical, grasp_free_axis
 from funrec_robot.plan_config import PlanConfig
 from funrec_robot.plan_file import Plan, Segment, sha256_file
@@ -281,8 +282,14 @@ def _handle_path(
                 # The gripper turns on the bar to let the door go sideways off a finger (GraspConfig.fall_roll).
                 config = replace(config, grasp=replace(config.grasp, fall_state=target_state))
             candidates = grasp_candidates(robot, task, states, geometry, r_max, config.grasp)
+    if not candidates and not graspable_tilts(robot, task, geometry, config.grasp):
+        size = "" if task.handle_width is None else f" ({1000 * task.handle_width:.0f} mm thick)"
+        raise Refusal(
+            f"part '{task.part}': the gripper cannot take the handle{size} at any tilt: its bar meets the palm or "
+            "the fingertips meet the part's front"
+        )
     if not candidates:
-        raise PlanningError(
+        raise Refusal(
             f"part '{task.part}': the handle path leaves the arm's vertical reach from the shoulder "
             f"({geometry.p_base_shoulder[2]:.2f} m high) whatever the grasp tilt"
         )
@@ -522,7 +529,7 @@ def _plan_interaction(robot: RobotDescription, scene_xml: str | Path, task: Arti
     geometry = measure_robot(robot)
     refusal = reach_refusal(robot, geometry, task)
     if refusal is not None:
-        raise PlanningError(f"part '{task.part}': {refusal}")
+        raise Refusal(f"part '{task.part}': {refusal}")
     if geometry.lift_range is not None:  # a torso or mast starts at the handle's height; the IK moves it on
         robot = lifted(robot, geometry, handle_height(task), config.ik.limit_margin)
         geometry = measure_robot(robot)

@@ -266,12 +266,39 @@ def part_sweep_footprint(
     return tuple(out)
 
 
+def _front_face(
+    p_box: FloatArray, half: FloatArray, low: FloatArray, high: FloatArray, candidates: npt.NDArray[np.bool_], thin_only: bool
+) -> tuple[float, int, int] | None:
+    """(gap, box, axis) of the box face behind the contact point (``p_box``: in each box's frame) among the
+    ``candidates``, whose extent across the face overlaps [``low``, ``high``] (per box, in its frame; the contact
+    point itself, or the handle's boxes) within ``PANEL_MARGIN_M``: the one the contact point projects onto
+    best, then the nearest; with ``thin_only``, only the big face of a thin panel (half-thickness below
+    ``PANEL_THICKNESS_M``)."""
+    best: tuple[tuple[float, float], int, int] | None = None
+    for k in np.flatnonzero(candidates):
+        for axis in ([int(np.argmin(half[k]))] if thin_only else range(3)):
+            others = [a for a in range(3) if a != axis]
+            if thin_only and (half[k, axis] > PANEL_THICKNESS_M or np.min(half[k, others]) < max(PANEL_MIN_SIDE_M, 3.0 * half[k, axis])):
+                continue
+            if np.any(low[k, others] > half[k, others] + PANEL_MARGIN_M) or np.any(high[k, others] < -half[k, others] - PANEL_MARGIN_M):
+                continue
+            gap = abs(float(p_box[k, axis])) - half[k, axis]
+            # How far the contact point's projection falls outside the face (0 within the margin) comes first:
+            # a handle on posts overlaps the panel's edge face as well as its front.
+            excess = float(np.linalg.norm(np.maximum(np.abs(p_box[k, others]) - half[k, others] - PANEL_MARGIN_M, 0.0)))
+            if gap > 0.0 and (best is None or (excess, gap) < best[0]):
+                best = ((excess, gap), int(k), axis)
+    return None if best is None else (best[0][1], best[1], best[2])
+
+
 def part_front(model: mujoco.MjModel, joint: int, p_world_contact: npt.ArrayLike) -> PartFront:
     """Outward normal, handle standoff and handle axis of a part, from its geoms at the canonical state.
 
     The front panel is the thin geom of the part (half-thickness below ``PANEL_THICKNESS_M``) whose face the
     contact point projects onto and lies nearest in front of; the handle is the geoms whose boxes contain
-    the contact point.
+    the contact point. Where no thin panel is so, the face of any other geom of the part that lies nearest
+    behind the contact point and that the handle's boxes overlap (a handle reaching past a panel's edge, a
+    front that is one face of a thick body).
 
     Raises:
         PlanningError: no panel of the part faces the contact point.
@@ -282,28 +309,25 @@ def part_front(model: mujoco.MjModel, joint: int, p_world_contact: npt.ArrayLike
     data = _posed_data(model, qpos)
     centre, R, half = geom_boxes(model, data, geoms)
     p_box = np.einsum("kji,kj->ki", R, p - centre)  # R^T (p - c): contact point in each box's frame
-    best: tuple[float, int, FloatArray] | None = None
-    for k in range(len(geoms)):
-        thin = int(np.argmin(half[k]))
-        others = [a for a in range(3) if a != thin]
-        if half[k, thin] > PANEL_THICKNESS_M or np.min(half[k, others]) < max(PANEL_MIN_SIDE_M, 3.0 * half[k, thin]):
-            continue
-        if np.any(np.abs(p_box[k, others]) > half[k, others] + PANEL_MARGIN_M):
-            continue
-        gap = abs(p_box[k, thin]) - half[k, thin]
-        if gap <= 0.0:
-            continue
-        if best is None or gap < best[0]:
-            best = (gap, k, np.sign(p_box[k, thin]) * R[k][:, thin])
+    outside = np.maximum(np.abs(p_box) - half, 0.0)
+    in_handle = np.linalg.norm(outside, axis=1) <= HANDLE_CONTAINS_M
+    everything = np.ones(len(geoms), dtype=bool)
+    best = _front_face(p_box, half, p_box, p_box, everything, thin_only=True)
+    if best is None and np.any(in_handle):
+        # A handle that reaches past the panel's edge (Meta-World's door) or a front that is the face of a thick
+        # geom (Meta-World's drawer is one box): the face nearest behind the contact point that the handle's
+        # boxes overlap.
+        corners = box_corners(centre[in_handle], R[in_handle], half[in_handle]).reshape(-1, 3)
+        local = np.einsum("kji,kmj->kmi", R, corners[None, :, :] - centre[:, None, :])
+        best = _front_face(p_box, half, local.min(axis=1), local.max(axis=1), ~in_handle, thin_only=False)
     if best is None:
         raise PlanningError(
             f"part '{_name(model, mujoco.mjtObj.mjOBJ_JOINT, joint)}': no front panel of the part faces the "
             f"contact point {np.round(p, 3).tolist()}; geoms: "
             f"{format_names(_name(model, mujoco.mjtObj.mjOBJ_GEOM, g) for g in geoms)}"
         )
-    _, panel, normal = best
-    outside = np.maximum(np.abs(p_box) - half, 0.0)
-    in_handle = np.linalg.norm(outside, axis=1) <= HANDLE_CONTAINS_M
+    _, panel, face = best
+    normal = np.sign(p_box[panel, face]) * R[panel][:, face]
     in_handle[panel] = False
     handle_axis, width, depth = None, None, None
     if np.any(in_handle):

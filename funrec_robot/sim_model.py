@@ -127,7 +127,23 @@ def _prepare_robot_spec(robot: RobotDescription) -> mujoco.MjSpec:
                 # Gravity compensation then comes from the actuator and counts against its force limit.
                 joint.actgravcomp = True
     if robot.grasp_site != robot.ee_site:
-        # The compiled model gives the site's pose in its body whatever orientation syntax the file used.
+        body_name, pos, quat_wxyz = _grasp_site_pose(robot)
+        spec.body(body_name).add_site(name=robot.grasp_site, pos=pos, quat=quat_wxyz, size=[0.01, 0.01, 0.01])
+    return spec
+
+
+_GRASP_SITES: dict[tuple, tuple[str, FloatArray, FloatArray]] = {}
+"""``_grasp_site_pose`` per robot model and end-effector: every model build (one per plan and check) compiled the
+robot alone once more for it, ~0.1 s for a robot of meshes."""
+
+
+def _grasp_site_pose(robot: RobotDescription) -> tuple[str, FloatArray, FloatArray]:
+    """(body, pos, quat wxyz) of the grasp site in the body of the end-effector site. The compiled model gives the
+    site's pose in its body whatever orientation syntax the file used."""
+    path = Path(robot.model_path)
+    key = (str(path), path.stat().st_mtime_ns if path.is_file() else 0, robot.root_body, repr(robot.planar_base), robot.ee_body,
+           robot.ee_site, tuple(robot.drop_actuators), np.asarray(robot.T_ee_grasp).tobytes())
+    if key not in _GRASP_SITES:
         compiled = robot_spec(
             robot.model_path, robot.root_body, robot.planar_base, robot.ee_body, robot.ee_site, robot.drop_actuators
         ).compile()
@@ -136,9 +152,8 @@ def _prepare_robot_spec(robot: RobotDescription) -> mujoco.MjSpec:
         T_body_ee[:3, :3] = Rotation.from_quat(np.roll(site.quat, -1)).as_matrix()
         T_body_ee[:3, 3] = site.pos
         pos, quat_wxyz = _T_to_pos_quat(T_body_ee @ robot.T_ee_grasp)
-        body = spec.body(compiled.body(site.bodyid[0]).name)
-        body.add_site(name=robot.grasp_site, pos=pos, quat=quat_wxyz, size=[0.01, 0.01, 0.01])
-    return spec
+        _GRASP_SITES[key] = (compiled.body(site.bodyid[0]).name, pos, quat_wxyz)
+    return _GRASP_SITES[key]
 
 
 def _add_coupling_equalities(spec: mujoco.MjSpec, robot: RobotDescription) -> None:

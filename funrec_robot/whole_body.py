@@ -9,6 +9,7 @@ import numpy as np
 
 from funrec.errors import PlanningError
 from funrec.typed import FloatArray
+from funrec_robot.budget import TimeLimitSpent
 from funrec_robot.feasibility import GravityOverload, first_collision, gravity_overload
 from funrec_robot.grasp import FLIP, GraspCandidate, handle_frames, offset_along_approach, release_command
 from funrec_robot.ik import WholeBodyIK
@@ -60,7 +61,7 @@ def whole_body_configurations(
     Returns a dict: grasp, flip, path (N, 4, 4 grasp frames used), states (N,), configs {approach:
     [q_start, (via,) q_pre, q_grasp], path: (N, nq), retreat}, tracked (IKResult), placement.
     """
-    frames, depth, tilt = grasp.frames, grasp.depth, grasp.tilt
+    frames, depth = grasp.frames, grasp.depth
     start_state = float(states[0])
     data = mujoco.MjData(model)
     data.qpos[model.jnt_qposadr[joint]] = start_state
@@ -72,18 +73,41 @@ def whole_body_configurations(
                      freeze_base=robot.drive == "differential")
     posture = posture_along(robot, placement, len(states))
     q_start = posture[0].copy()
-    opening, holding = grasp.opening, grasp.holding
+    opening = grasp.opening
 
-    best = None
+    scored = []
     for flip in (False, True):
         path = frames @ FLIP if flip else frames
         T_pre = offset_along_approach(path[0], config.pregrasp_distance)
         q_pre, e_pos, e_rot = ik.solve(T_pre, q_start, posture[0], start_state, opening, unload=unload)
         score = e_pos + 0.1 * e_rot + 0.01 * float(np.linalg.norm(q_pre - q_start))
-        if best is None or score < best[0]:
-            best = (score, flip, path, q_pre, e_pos, e_rot)
-    assert best is not None
-    _, flip, path, q_pre, e_pos, e_rot = best
+        scored.append((score, flip, path, q_pre, e_pos, e_rot))
+    scored.sort(key=lambda item: item[0])
+    errors: list[PlanningError] = []
+    for rank, (_, flip, path, q_pre, e_pos, e_rot) in enumerate(scored):
+        if rank > 0 and (e_pos > config.track_position_tolerance or e_rot > config.track_orientation_tolerance):
+            break  # the other way round does not even reach the pre-grasp pose
+        try:
+            return _from_pregrasp(robot, model, ik, task, grasp, states, placement, target_state, fingertip_depth, config,
+                                  unload, flip, path, q_start, q_pre, e_pos, e_rot, posture)
+        except TimeLimitSpent:
+            raise
+        except PlanningError as exc:  # a gravity overload too: the caller tries other postures if both ways fail
+            errors.append(exc)
+    raise errors[0]
+
+
+def _from_pregrasp(
+    robot: RobotDescription, model: mujoco.MjModel, ik: WholeBodyIK, task: ArticulationTask, grasp: GraspCandidate,
+    states: FloatArray, placement: BasePlacement, target_state: float, fingertip_depth: float, config: PlanConfig,
+    unload: bool, flip: bool, path: FloatArray, q_start: FloatArray, q_pre: FloatArray, e_pos: float, e_rot: float,
+    posture: FloatArray,
+) -> dict:
+    """The rest of :func:`whole_body_configurations` for one way round of the gripper (``flip``) from its
+    pre-grasp solution: grasp, approach (with a via pose if needed), handle path, retreat."""
+    depth, tilt = grasp.depth, grasp.tilt
+    start_state = float(states[0])
+    opening, holding = grasp.opening, grasp.holding
     _require(e_pos, e_rot, config, "pre-grasp pose", start_state, task)
     q_grasp, e_pos, e_rot = ik.solve(path[0], q_pre, posture[0], start_state, opening, unload=unload)
     _require(e_pos, e_rot, config, "grasp pose", start_state, task)
@@ -107,7 +131,8 @@ def whole_body_configurations(
             if hit is not None:
                 raise PlanningError(f"approach of part '{task.part}': {hit[0]} runs into {hit[1]} (also through a via pose)")
 
-    tracked = ik.track(path[1:], states[1:], q_grasp, posture[1:], holding, unload)
+    tracked = ik.track(path[1:], states[1:], q_grasp, posture[1:], holding, unload,
+                       give_up=(config.track_position_tolerance, config.track_orientation_tolerance))
     worst = int(np.argmax(tracked.position_error / config.track_position_tolerance + tracked.orientation_error / config.track_orientation_tolerance))
     _require(tracked.position_error[worst], tracked.orientation_error[worst], config, "handle path", states[1 + worst], task)
     q_path = np.vstack([q_grasp, tracked.q])

@@ -67,3 +67,20 @@ def test_solve_reaches_a_reachable_target_and_reports_an_unreachable_one(robot, 
     far[:3, 3] += [5.0, 0.0, 0.0]  # beyond the base's speed limit within the iteration budget: not reached
     _, e_pos, _ = ik.solve(far, robot.q_home, robot.q_home, 0.0, robot.gripper.open, max_iterations=20)
     assert e_pos > 0.5
+
+
+def test_tracking_gives_up_at_the_first_missed_target(robot, tmp_path_factory) -> None:
+    """A path whose second target is 5 m away stops there with ``give_up`` (the third, reachable, is not
+    solved: a path with a miss is no plan), and is followed to its end without."""
+    gt = write_gt_scene(PRISMATIC_CASE, tmp_path_factory.mktemp("ik_track"))
+    model = build_mujoco_model(robot, gt / "scene.xml")
+    ik = WholeBodyIK(robot, model, part_joint(model, "part_0"), np.zeros((1, 3)), [])
+    T = ik.grasp_pose(robot.q_home, 0.0, robot.gripper.open)
+    far = T.copy()
+    far[:3, 3] += [5.0, 0.0, 0.0]
+    targets = np.stack([T, far, T])
+    postures = np.tile(robot.q_home, (3, 1))
+    full = ik.track(targets, np.zeros(3), robot.q_home, postures, robot.gripper.open)
+    cut = ik.track(targets, np.zeros(3), robot.q_home, postures, robot.gripper.open, give_up=(0.005, 0.05))
+    assert len(full.q) == 3 and full.position_error[1] > 0.5
+    assert len(cut.q) == 2 and cut.position_error[1] > 0.5 and cut.position_error[0] < 0.005

@@ -18,6 +18,7 @@ from funrec.errors import FunrecError, PlanningError
 from funrec.formats.affordances import Affordances, Interaction, PartAffordance, write_affordances
 from funrec.formats.twin import TwinArticulation, make_part, write_articulation
 from funrec_robot import build_mujoco_model, default_robot_path, load_robot, robot_indices
+from funrec_robot.errors import Refusal
 from funrec_robot.feasibility import kinematic_collisions
 from funrec_robot.grasp_frames import roll_to_hold, rotation_about_grasp_axis
 from funrec_robot.plan import PlanConfig, plan_interaction
@@ -217,7 +218,7 @@ def test_unreachable_part_is_refused_at_once_in_one_sentence(robot, scenes) -> N
     task = task_from_ground_truth(gt, "part_0")
     high = dataclasses.replace(task, p_world_contact=task.p_world_contact + [0.0, 0.0, 1.6])  # a handle at 2.4 m
     started = time.process_time()
-    with pytest.raises(PlanningError, match=r"part 'part_0': handle at 2\.40 m; funrec_mm reaches 0\.\d\d-\d\.\d\d m$"):
+    with pytest.raises(Refusal, match=r"part 'part_0': handle at 2\.40 m; funrec_mm reaches 0\.\d\d-\d\.\d\d m$"):
         plan_interaction(robot, gt / "scene.xml", high, "open", config=dataclasses.replace(PlanConfig(), time_budget=3.0))
     assert time.process_time() - started < 1.0  # refused before any optimisation
 

@@ -111,3 +111,18 @@ def test_fetch_ik_unloads_the_wrist_through_the_null_space(fetch, tmp_path) -> N
     # only pulls above 20 % here, so a drop is all it can promise).
     unloaded = float(np.abs(gravity._load(ik.full_q(q_free, 0.0, fetch.gripper.open))).max())
     assert unloaded < loaded - 0.02, (loaded, unloaded)
+
+
+def test_fetch_ik_keeps_its_upper_arm_off_its_torso(fetch, model) -> None:
+    """On the right cabinet door Fetch's shoulder lift link met its torso in the check (2 mm apart at home, a
+    grandchild of the torso, so mink gave no pair): its shoulder pan servo then asked 41.6 of 33.8 N m. The IK
+    has the pair now, with the arm's self-collision gap."""
+    from funrec_robot.collision_limit import BoxedCollisionLimit
+    from funrec_robot.ik import IKConfig, WholeBodyIK
+
+    ik = WholeBodyIK(fetch, model, 0, np.zeros((1, 3)), [], IKConfig())  # the robot alone: no part to freeze
+    limits = [lim for lim in ik.limits if isinstance(lim, BoxedCollisionLimit)]
+    names = {frozenset((model.body(model.geom_bodyid[a]).name, model.body(model.geom_bodyid[b]).name))
+             for lim in limits for a, b in lim.geom_id_pairs}
+    assert frozenset(("robot/robot0:torso_lift_link", "robot/robot0:shoulder_lift_link")) in names
+    assert limits[-1].minimum_distance_from_collisions == IKConfig().wrist_collision_distance

@@ -147,3 +147,52 @@ def test_coupled_stages_follow_their_leader_in_the_model_and_the_ik(stretch) -> 
     data.qpos[:] = ik.full_q(solved, 0.0, 0.0)
     mujoco.mj_kinematics(model, data)
     assert data.site_xpos[indices.grasp_site] == pytest.approx(target[:3, 3], abs=0.005)
+
+
+def test_tiagos_wrist_keeps_off_its_forearm_through_a_microwave_door(tiago, tmp_path) -> None:
+    tiago, _ = tiago
+    """Opening the counter-top microwave, TIAGo flexed its wrist into its forearm (arm_7_link on arm_5_link) at the
+    end of the swing: the simulated servo then pushed against the contact beyond its effort limit and the check
+    failed. The IK now keeps the hand and last arm link ``wrist_collision_distance`` (5 mm) off the arm's links
+    before the wrist; the plan's closest approach of those links stays above 4 mm (1 mm for the joint
+    interpolation between IK waypoints 2 cm of handle travel apart)."""
+    import mujoco
+
+    from funrec_robot.collision_limit import BoxedCollisionLimit
+    from funrec_robot.ik import WholeBodyIK
+    from funrec_robot.plan import plan_interaction
+    from funrec_robot.scene import part_joint
+    from funrec_robot.sim_model import build_mujoco_model
+    from funrec_robot.task_sources import task_from_ground_truth
+    from tests.helpers.robot_scenes import write_gt_scene
+
+    gt = write_gt_scene("rev_microwave_00", tmp_path)
+    model = build_mujoco_model(tiago, gt / "scene.xml")
+    plan = plan_interaction(tiago, gt / "scene.xml", task_from_ground_truth(gt, "part_0", model), "open", model=model)
+    ik = WholeBodyIK(tiago, model, part_joint(model, "part_0"), np.zeros((1, 3)), [])
+    pairs = [lim for lim in ik.limits if isinstance(lim, BoxedCollisionLimit)][-1].geom_id_pairs
+    names = {(model.body(model.geom_bodyid[a]).name, model.body(model.geom_bodyid[b]).name) for a, b in pairs}
+    assert ("robot/arm_5_link", "robot/arm_7_link") in names or ("robot/arm_7_link", "robot/arm_5_link") in names
+    data = mujoco.MjData(model)
+    closest = np.inf
+    for i in range(plan.segment("actuate").start, plan.segment("actuate").end + 1, 5):
+        data.qpos[:] = ik.full_q(plan.q[i], plan.part_state[i], plan.grasp_command)
+        mujoco.mj_kinematics(model, data)
+        closest = min(closest, min(mujoco.mj_geomDistance(model, data, a, b, 0.1, None) for a, b in pairs))
+    assert closest > 0.004
+
+
+def test_the_grasp_site_is_placed_once_per_robot_model(tiago) -> None:
+    """Each model build placed the grasp site by compiling the robot alone once more; the placement is kept per
+    model and end-effector, and a build from it puts the site where a fresh one does."""
+    from funrec_robot import sim_model
+
+    tiago, _ = tiago
+    sim_model._GRASP_SITES.clear()
+    fresh = sim_model.build_mujoco_model(tiago)
+    assert len(sim_model._GRASP_SITES) == 1
+    again = sim_model.build_mujoco_model(tiago)
+    assert len(sim_model._GRASP_SITES) == 1
+    site = sim_model.robot_indices(tiago, fresh).grasp_site
+    np.testing.assert_array_equal(again.site_pos[site], fresh.site_pos[site])
+    np.testing.assert_array_equal(again.site_quat[site], fresh.site_quat[site])
