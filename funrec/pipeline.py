@@ -303,7 +303,8 @@ def _depth_part(window: WindowTracks, capture: Capture, trajectory: CameraTrajec
     hand = (lambda frame: span.mask("hand", frame)) if span.has_hand_masks else None
     joint = None if rival is None else (rival.joint_type, rival.axis_world, rival.pivot_world)
     proposal = propose_part(span, poses, hand, config.depth_proposal, joint)
-    if proposal is not None and hands_detected and _hand_labels_part(proposal, span, poses, config):
+    added = proposal_tracks(proposal, span, poses) if proposal is not None and hands_detected else None
+    if added is not None and _hand_labels_part(added, span, config):
         # hands detected before any part was known take a part moving towards the camera for the arm (a
         # drop-down oven door: plain_rev_oven_00 axis 9.4 deg off, range 107 deg for 74): detected again with
         # the proposed part's motion known, its pixels are explained by it and stay in the depth
@@ -312,13 +313,15 @@ def _depth_part(window: WindowTracks, capture: Capture, trajectory: CameraTrajec
         log.info("depth proposal: hands detected again in frames %d-%d with the proposed %s known",
                  window.first, window.last, proposal.joint_type)
         proposal = propose_part(span, poses, lambda frame: hands.mask(frame), config.depth_proposal, joint)
+        added = None
     if proposal is None:
         return None
     if proposal.rival_held and (rival is None or proposal.joint_type != rival.joint_type or proposal.joint_type == "revolute"):
         return None
     # depth's part replaces the tracks' part: its joint explains the surface that left clearly better, or it is
     # the tracks' own slide on that surface (see propose_part)
-    added = proposal_tracks(proposal, span, poses)
+    if added is None:
+        added = proposal_tracks(proposal, span, poses)
     N = window.tracks.num_tracks
     tracks = PointTracks(np.concatenate([window.tracks.p_world, added.p_world], 1),
                          np.concatenate([window.tracks.uv, added.uv], 1),
@@ -330,12 +333,12 @@ def _depth_part(window: WindowTracks, capture: Capture, trajectory: CameraTrajec
     return WindowTracks(window.first, window.last, tracks), part
 
 
-def _hand_labels_part(proposal: DepthProposal, span: Capture, poses: CameraTrajectory, config: ReconstructConfig) -> bool:
-    """Whether the span's hand masks label the proposed part itself: in at least
-    ``hand_recheck_frames`` frames, more than ``hand_recheck_fraction`` of the part's points that
-    the depth sees where the joint puts them fall inside the hand mask. A hand in front of the part
-    hides its points (the depth there is nearer), so right masks give ~0 (mask edges only)."""
-    tracks = proposal_tracks(proposal, span, poses)
+def _hand_labels_part(tracks: PointTracks, span: Capture, config: ReconstructConfig) -> bool:
+    """Whether the span's hand masks label the proposed part itself, given the proposal's ``tracks``
+    (:func:`~funrec.parts.depth_proposal.proposal_tracks`: its points where the joint puts them,
+    visible where the depth sees them there): in at least ``hand_recheck_frames`` frames, more than
+    ``hand_recheck_fraction`` of the visible points fall inside the hand mask. A hand in front of
+    the part hides its points (the depth there is nearer), so right masks give ~0 (mask edges only)."""
     labelled = 0
     for frame in range(len(span)):
         mask = span.mask("hand", frame)

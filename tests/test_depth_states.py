@@ -185,7 +185,7 @@ def test_hand_masks_that_label_the_proposed_part_itself_are_caught() -> None:
     arm (plain_rev_oven_00). The pipeline then detects them again knowing the proposal's motion
     (funrec.pipeline._hand_labels_part decides). Masks on the door's own pixels are caught; a
     hand in front of the door, masked, is not: the door's points behind it are hidden, not seen."""
-    from funrec.parts.depth_proposal import propose_part
+    from funrec.parts.depth_proposal import proposal_tracks, propose_part
     from funrec.pipeline import ReconstructConfig, _hand_labels_part
 
     true, capture, trajectory = _opening_door()
@@ -206,6 +206,9 @@ def test_hand_masks_that_label_the_proposed_part_itself_are_caught() -> None:
     in_front = [blob if 8 <= f <= 20 else np.zeros_like(blob) for f in range(F)]
     depth = [capture.depth_m(f) for f in range(F)]
     config = ReconstructConfig()
-    assert _hand_labels_part(proposal, fake(depth, on_door), trajectory, config)
-    assert not _hand_labels_part(proposal, fake(hand_in_front, in_front), trajectory, config)
-    assert not _hand_labels_part(proposal, fake(depth, [np.zeros_like(blob)] * F), trajectory, config)
+    def labelled(span: object) -> bool:
+        return _hand_labels_part(proposal_tracks(proposal, span, trajectory), span, config)
+
+    assert labelled(fake(depth, on_door))
+    assert not labelled(fake(hand_in_front, in_front))
+    assert not labelled(fake(depth, [np.zeros_like(blob)] * F))
