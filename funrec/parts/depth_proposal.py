@@ -28,7 +28,7 @@ from funrec.formats.capture import Capture
 from funrec.geometry.camera import backproject
 from funrec.geometry.joints import joint_transforms
 from funrec.geometry.transforms import invert_transform, transform_points
-from funrec.parts.depth_states import DepthStateConfig, depth_fit, depth_states, point_cost
+from funrec.parts.depth_states import Arrival, DepthStateConfig, depth_fit, depth_states
 from funrec.parts.point_tracks import PointTracks
 from funrec.typed import BoolArray, FloatArray, IntArray
 
@@ -73,9 +73,10 @@ class DepthProposalConfig:
     hinge_offsets_m: tuple[float, ...] = (-0.03, 0.0, 0.03, 0.06)
     """Offsets of a hinge line outwards from the edge of the surface that left: the strip by the
     hinge barely moves, so it never leaves by the margin and the hinge lies a little beyond it."""
-    arrival_frames: int = 8
-    """Frames of the span's second half on which the surfaces that arrived in front of frame 0's
-    view are moved back by each hypothesis (:func:`_return_cost`)."""
+    arrival_points: int = 150
+    """Points of each frame's surface that arrived in front of frame 0's view (evenly subsampled)
+    that every hypothesis moves back by its state and scores against frame 0's depth
+    (:class:`~funrec.parts.depth_states.Arrival`): as many as a hypothesis's own points."""
     hinge_refine_steps_deg: tuple[float, ...] = (8.0, 4.0, 2.0, 1.0)
     """Steps of the search that turns the best hinge within the front's plane (empty: no search)."""
     hinge_refine_steps_m: tuple[float, ...] = (0.02, 0.01, 0.005, 0.005)
@@ -167,20 +168,22 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
     # memory once (a few MB), not decoded again per hypothesis from the full images.
     coarse, coarse_poses, search = _coarse(views, config)
     hypothesis_points = points[np.linspace(0, len(points) - 1, min(len(points), config.hypothesis_points)).astype(int)]
-    static = depth_fit(coarse, coarse_poses, "prismatic", normal, None, hypothesis_points, _held_still(search))[1]
-    # frames to test what arrived on: evenly spread over the second half, where the part stands moved
+    # what arrived in front of frame 0's view, in every scored frame: the moved part must be it
     F = len(capture)
-    arrived = _arrived(views, np.unique(np.linspace(F // 2, F - 1, config.arrival_frames).astype(int)))
+    scored = np.arange(0, F, config.score_stride)
+    arrived = _arrived(views, scored)
+    coarse_arrival = Arrival(np.arange(len(scored)), arrived, views.depth0_m, capture.intrinsics.K,
+                             invert_transform(trajectory.T_world_camera[0]))
+    static = depth_fit(coarse, coarse_poses, "prismatic", normal, None, hypothesis_points, _held_still(search),
+                       coarse_arrival)[1]
     best_of: dict[str, tuple[float, str, FloatArray, FloatArray | None]] = {}
     rival_cost = np.inf
     hypotheses = _hypotheses(points, normal, u_axis, v_axis, config.hinge_offsets_m)
 
     def score(joint_type: str, axis: FloatArray, pivot: FloatArray | None) -> float:
-        coarse_states, cost = depth_fit(coarse, coarse_poses, joint_type, axis, pivot, hypothesis_points, search)
+        _, cost = depth_fit(coarse, coarse_poses, joint_type, axis, pivot, hypothesis_points, search, coarse_arrival)
         if not np.isfinite(cost):
             return np.inf
-        states = np.interp(np.arange(F), np.arange(0, F, config.score_stride), coarse_states)
-        cost += _return_cost(arrived, joint_type, axis, pivot, states, views, config.search)
         logger.debug("hypothesis %s axis %s pivot %s: cost %.3f", joint_type, axis.round(3),
                      None if pivot is None else pivot.round(3), cost)
         return cost
@@ -208,7 +211,6 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
                                    lambda a, p: score("prismatic", a, None))
         best_of["prismatic"] = (cost, "prismatic", axis, None)
     best = min(best_of.values(), key=lambda b: b[0]) if best_of else None
-    static += _return_cost(arrived, "prismatic", normal, None, np.zeros(F), views, config.search)
     if best is None or not best[0] < config.min_gain * static:
         logger.info("depth proposal: best cost %s vs still %.3f: no joint explains the surface that left",
                     "-" if best is None else f"{best[0]:.3f}", static)
@@ -226,8 +228,10 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
         # a drawer's tracks often sit on what it carries, or on the walls beside a plain front: the tracks'
         # joint (many tracks pin its axis) on depth's surface (plain drawers: ADD 42 -> 97, mIoU 44 -> 88)
         cost, (joint_type, axis, pivot) = rival_cost, rival
+    every = np.arange(F)
+    arrival = replace(coarse_arrival, frames=every, p_world=_arrived(views, every))
     states = depth_states(capture, trajectory, joint_type, axis, pivot, points, np.zeros(1, np.int64), np.zeros(1),
-                          np.ones(1, bool), config.depth)
+                          np.ones(1, bool), config.depth, arrival=arrival)
     states = states - states[0]
     if states[np.argmax(np.abs(states))] < 0:
         axis, states = -axis, -states
@@ -286,7 +290,7 @@ def _coarse(views: _Views, config: DepthProposalConfig) -> tuple[_DepthFrames, C
     """Every ``score_stride``-th frame's work-resolution depth (hand pixels removed), its poses, and
     the search settings for it (speeds per kept frame)."""
     frames = np.arange(0, len(views.capture), config.score_stride)
-    depth = tuple(np.where(views.view(f)[1], views.view(f)[0], 0.0) for f in frames)
+    depth = tuple(views.view(f)[0] for f in frames)
     T = views.trajectory.T_world_camera[frames]
     poses = CameraTrajectory(T, np.zeros(0, np.int64), np.ones(len(frames), dtype=bool))
     stride = config.score_stride
@@ -362,31 +366,16 @@ def _surface_that_left(views: _Views) -> FloatArray:
     return p_world[left >= views.config.min_frames]
 
 
-def _arrived(views: _Views, frames: IntArray) -> list[tuple[int, FloatArray]]:
-    """(frame, (N, 3) world points) of surfaces in front of what frame 0 saw: frame 0 sees through them."""
+def _arrived(views: _Views, frames: IntArray) -> tuple[FloatArray, ...]:
+    """(N, 3) world points, per frame, of surfaces in front of what frame 0 saw (frame 0 sees
+    through them), at most ``arrival_points`` (evenly subsampled)."""
     out = []
     for frame in frames:
         p_world = views.points(int(frame))
-        out.append((int(frame), p_world[views.seen_through(p_world, 0)]))
-    return out
-
-
-def _return_cost(arrived: list[tuple[int, FloatArray]], joint_type: str, axis: FloatArray, pivot: FloatArray | None,
-                 states: FloatArray, views: _Views, config: DepthStateConfig) -> float:
-    """Mean cost of the arrived surfaces moved back to the canonical state by the joint, against
-    frame 0's depth: the moved part must be what arrived, so moved back it lies on the closed front.
-    A slide that carries a turned door's points along coplanar neighbouring fronts explains the
-    surface that left, but not the leaf standing out in front of the cabinet."""
-    costs, weights = [], []
-    T_camera0_world = invert_transform(views.trajectory.T_world_camera[0])
-    for frame, p_world in arrived:
-        if len(p_world) == 0:
-            continue
-        T = joint_transforms(joint_type, axis, pivot, states[frame : frame + 1])[0]
-        x = transform_points(invert_transform(T), p_world)
-        costs.append(point_cost(views.depth0_m, views.capture.intrinsics.K, T_camera0_world, x, config))
-        weights.append(len(p_world))
-    return float(np.average(costs, weights=weights)) if costs else 0.0
+        p_world = p_world[views.seen_through(p_world, 0)]
+        n = views.config.arrival_points
+        out.append(p_world[np.linspace(0, len(p_world) - 1, n).astype(int)] if len(p_world) > n else p_world)
+    return tuple(out)
 
 
 def _front_plane(p: FloatArray, tolerance_m: float, iterations: int = 200

@@ -80,6 +80,31 @@ class DepthStateConfig:
     """Neighbourhood radius of the part points whose plane (PCA) gives a point's normal."""
 
 
+@dataclass(frozen=True)
+class Arrival:
+    """Surfaces that arrived in front of what a reference frame saw, as evidence for the state search.
+
+    Points of a frame that the reference frame (the canonical state's) sees through stand where
+    nothing stood then: the moved part. Moved back by the joint at the right state they lie on the
+    reference frame's surface (the closed front); at a wrong state they float in front of it (seen
+    through) or sink behind it (hidden). A part's own points can only say "hidden" once it moves
+    where the camera cannot see it (a drawer pushed into its carcass costs ``occluded_cost``, as little as
+    the drawer pulled out under an arm); the surface that arrived says where it went."""
+
+    frames: IntArray
+    """(A,) capture frames that have arrived points."""
+    p_world: tuple[FloatArray, ...]
+    """(N_a, 3) world points that arrived in each of ``frames``."""
+    depth_m: FloatArray
+    """(H, W) depth of the reference frame, metres (0 = no reading)."""
+    K: FloatArray
+    """(3, 3) intrinsics of ``depth_m``."""
+    T_camera_world: FloatArray
+    """(4, 4) pose of the reference camera."""
+    weight: float = 0.5
+    """Share of a frame's cost given to its arrived points (the part's own points keep the rest)."""
+
+
 def depth_states(
     capture: Capture,
     trajectory: CameraTrajectory,
@@ -92,6 +117,7 @@ def depth_states(
     trusted: BoolArray,
     config: DepthStateConfig = DepthStateConfig(),  # noqa: B008 (frozen, immutable default)
     normal_world: FloatArray | None = None,
+    arrival: Arrival | None = None,
 ) -> FloatArray:
     """Joint state of every frame of the capture from its depth, consistent with the tracked states.
 
@@ -114,12 +140,14 @@ def depth_states(
         config: settings.
         normal_world: (M, 3) outward unit normals of ``p_world`` at the canonical state (NaN where
             unknown; see :func:`oriented_normals`); None: no point is scored as a panel's far face.
+        arrival: surfaces that arrived in front of the canonical frame's view (:class:`Arrival`),
+            scored moved back by each state; None: the part's own points only.
 
     Returns:
         (F,) state of every capture frame (rad or m), same canonical state as ``tracked_states``.
     """
     states, _ = _search(capture, trajectory, joint_type, axis_world, pivot_world, p_world, tracked_frames, tracked_states,
-                        trusted, config, normal_world)
+                        trusted, config, normal_world, arrival)
     return states
 
 
@@ -131,6 +159,7 @@ def depth_fit(
     pivot_world: FloatArray | None,
     p_world: FloatArray,
     config: DepthStateConfig = DepthStateConfig(),  # noqa: B008 (frozen, immutable default)
+    arrival: Arrival | None = None,
 ) -> tuple[FloatArray, float]:
     """How well a joint hypothesis explains the depth of a capture, from depth alone.
 
@@ -139,7 +168,8 @@ def depth_fit(
     averaged over the frames that see the part, compares two joint types fitted to the same part
     without any texture: a door turned by a slide leaves its points in the air.
 
-    Args: as :func:`depth_states` (``p_world`` (M, 3) canonical part points, world frame).
+    Args: as :func:`depth_states` (``p_world`` (M, 3) canonical part points, world frame; the mean
+        cost includes the ``arrival`` term where given).
 
     Returns:
         (F,) state of every frame, and the mean cost in [0, 1] (NaN when no frame sees
@@ -147,7 +177,7 @@ def depth_fit(
     """
     none = np.zeros(0, np.int64)
     return _search(capture, trajectory, joint_type, axis_world, pivot_world, p_world, none, np.zeros(0),
-                   np.zeros(0, bool), config, None)
+                   np.zeros(0, bool), config, None, arrival)
 
 
 def point_cost(depth_m: FloatArray, K: FloatArray, T_camera_world: FloatArray, p_world: FloatArray,
@@ -159,7 +189,8 @@ def point_cost(depth_m: FloatArray, K: FloatArray, T_camera_world: FloatArray, p
 
 def _search(capture: Capture, trajectory: CameraTrajectory, joint_type: str, axis_world: FloatArray,
             pivot_world: FloatArray | None, p_world: FloatArray, tracked_frames: IntArray, tracked_states: FloatArray,
-            trusted: BoolArray, config: DepthStateConfig, normal_world: FloatArray | None) -> tuple[FloatArray, float]:
+            trusted: BoolArray, config: DepthStateConfig, normal_world: FloatArray | None,
+            arrival: Arrival | None = None) -> tuple[FloatArray, float]:
     """(F,) states of :func:`depth_states` and the mean depth cost of the chain over the frames that see the part."""
     F = len(capture)
     revolute = joint_type == "revolute"
@@ -167,8 +198,9 @@ def _search(capture: Capture, trajectory: CameraTrajectory, joint_type: str, axi
     limit = config.revolute_limit_rad if revolute else config.prismatic_limit_m
     grid = np.arange(-np.ceil(limit / step), np.ceil(limit / step) + 1) * step
     T_grid = joint_transforms(joint_type, axis_world, pivot_world, grid)  # (G, 4, 4)
-    p_grid = np.einsum("gij,mj->gmi", T_grid[:, :3, :3], p_world) + T_grid[:, None, :3, 3]  # (G, M, 3)
-    n_grid = None if normal_world is None else np.einsum("gij,mj->gmi", T_grid[:, :3, :3], normal_world)  # NaN stays NaN
+    R_grid_t = np.transpose(T_grid[:, :3, :3], (0, 2, 1))
+    p_grid = p_world[None] @ R_grid_t + T_grid[:, None, :3, 3]  # (G, M, 3)
+    n_grid = None if normal_world is None else normal_world[None] @ R_grid_t  # NaN stays NaN
     K = capture.intrinsics.K
     cost = np.zeros((F, len(grid)))
     seen = np.zeros(F, dtype=int)
@@ -177,6 +209,8 @@ def _search(capture: Capture, trajectory: CameraTrajectory, joint_type: str, axi
                                                p_grid, n_grid, config)
     seeing = seen >= config.min_points
     cost[~seeing] = 0.0
+    if arrival is not None:
+        _add_arrival(cost, seeing, T_grid, arrival, config)
     depth_only = cost.copy()
     sigma = config.track_sigma_rad if revolute else config.track_sigma_m
     for frame, state in zip(np.asarray(tracked_frames)[trusted], np.asarray(tracked_states)[trusted]):
@@ -188,6 +222,22 @@ def _search(capture: Capture, trajectory: CameraTrajectory, joint_type: str, axi
                 F, config.min_points, states.min(), states.max())
     mean_cost = float(depth_only[np.arange(F), chain][seeing].mean()) if seeing.any() else float("nan")
     return states, mean_cost
+
+
+def _add_arrival(cost: FloatArray, seeing: BoolArray, T_grid: FloatArray, arrival: Arrival, config: DepthStateConfig) -> None:
+    """Blend into ``cost`` (F, G), in place, each arrival frame's cost of its arrived points moved
+    back by every grid state (``T_grid`` (G, 4, 4)) against the reference depth; frames with
+    fewer than ``config.min_points`` arrived points keep their cost."""
+    R_inv = np.transpose(T_grid[:, :3, :3], (0, 2, 1))
+    t_inv = -np.einsum("gij,gj->gi", R_inv, T_grid[:, :3, 3])
+    for frame, p_world in zip(arrival.frames, arrival.p_world, strict=True):
+        if len(p_world) < config.min_points:
+            continue
+        back = p_world[None] @ np.transpose(R_inv, (0, 2, 1)) + t_inv[:, None, :]  # (G, N, 3); einsum is 20x slower
+        arrived, _ = _frame_cost(arrival.depth_m, arrival.K, arrival.T_camera_world, back, None, config)
+        w = arrival.weight if seeing[frame] else 1.0
+        cost[frame] = (1.0 - w) * cost[frame] + w * arrived
+        seeing[frame] = True
 
 
 def _frame_cost(depth_m: FloatArray, K: FloatArray, T_camera_world: FloatArray, p_grid: FloatArray,
@@ -270,4 +320,4 @@ def _min_cost_chain(cost: FloatArray, max_steps: int, change_cost: float) -> Int
     return path
 
 
-__all__ = ["DepthStateConfig", "depth_fit", "depth_states", "oriented_normals", "point_cost"]
+__all__ = ["Arrival", "DepthStateConfig", "depth_fit", "depth_states", "oriented_normals", "point_cost"]
