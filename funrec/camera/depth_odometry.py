@@ -98,6 +98,16 @@ class DepthOdometryConfig:
     0.015 deg)."""
     min_points: int = 300
     """A view with fewer usable points at the final stride is not registered."""
+    changed_min_fraction: float = 0.02
+    """After a first registration, source pixels off the keyframe's surface that form a connected
+    region larger than this fraction of the usable view are a change (a door turning, an arm, a
+    drawer) and are left out, with ``changed_margin_px`` around them, when the registration is run
+    again: the strip of a turning door by its hinge stays within the kernel and dragged the camera
+    with it, 1.7 cm per frame where the door gave the only surfaces across the slide (measured on
+    geo_island_rev_wall_00: a wall cabinet seen from below). Slivers that the camera's own motion
+    uncovers at depth edges stay. 0: no second registration (ablation)."""
+    changed_margin_px: int = 12
+    """Margin around a changed region, pixels at the map's stride (24 px at 640x480): the hinge strip."""
     depth_noise: DepthNoiseModel = DepthNoiseModel()
     """Sensor noise that sets the final distance and the Tukey kernel."""
 
@@ -135,14 +145,16 @@ class DepthView:
         return np.stack([cv2.Sobel(self.intensity, cv2.CV_32F, 1, 0, ksize=3) / 8.0,
                          cv2.Sobel(self.intensity, cv2.CV_32F, 0, 1, ksize=3) / 8.0])
 
-    def points(self, stride: int) -> tuple[FloatArray, FloatArray]:
+    def points(self, stride: int, keep: BoolArray | None = None) -> tuple[FloatArray, FloatArray]:
         """(N, 3) usable points at a pixel stride that is a multiple of the map's, and their (N,)
-        grey levels."""
+        grey levels; only where ``keep`` ((h, w) at the map's stride) is True, when given."""
         step = max(1, stride // self.stride)
         p = self.p_map[::step, ::step].reshape(-1, 3)
         grey = self.intensity[:: self.stride * step, :: self.stride * step][: self.p_map[::step].shape[0],
                                                                            : self.p_map[:, ::step].shape[1]]
         valid = np.isfinite(p[:, 2])
+        if keep is not None:
+            valid &= keep[::step, ::step].reshape(-1)
         return p[valid], grey.reshape(-1)[valid]
 
 
@@ -300,6 +312,45 @@ def _gauss_newton(p_source: FloatArray, grey_source: FloatArray, target: DepthVi
     return T, A if grey_steps else A + A_grey
 
 
+def _rounds(source: DepthView, target: DepthView, T: FloatArray, rounds: list[tuple[int, float]],
+            config: DepthOdometryConfig, keep: BoolArray | None = None) -> tuple[FloatArray, FloatArray] | None:
+    """The coarse-to-fine rounds (stride, correspondence distance) from ``T``: the pose and the last
+    round's normal matrix, or None."""
+    T = np.asarray(T, dtype=np.float64)
+    A = np.zeros((6, 6))
+    for k, (stride, distance) in enumerate(rounds):
+        final_round = k == len(rounds) - 1
+        result = _gauss_newton(*source.points(stride, keep), target, T, distance, config.iterations, config,
+                               grey_steps=not final_round or config.grey_in_final_round)
+        if result is None:
+            return None
+        T, A = result
+    return T, A
+
+
+def _unchanged(source: DepthView, target: DepthView, T: FloatArray, distance_m: float,
+               config: DepthOdometryConfig) -> BoolArray | None:
+    """(h, w) map pixels of the source outside large regions that are off the target's surface
+    at ``T`` (and a margin around them); None when there are none."""
+    if config.changed_min_fraction <= 0:
+        return None
+    h, w = source.p_map.shape[:2]
+    p = source.p_map.reshape(-1, 3)
+    usable = np.isfinite(p[:, 2])
+    p_t, q, n, has = _associate(np.where(usable[:, None], p, 0.0), target, T, np.inf, nearest=False)
+    with np.errstate(invalid="ignore"):
+        r = np.abs(np.einsum("ij,ij->i", p_t - q, n))
+    off = usable & has & ~(r < distance_m)
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(off.reshape(h, w).astype(np.uint8), connectivity=8)
+    large = stats[:, cv2.CC_STAT_AREA] > config.changed_min_fraction * usable.sum()
+    large[0] = False
+    if not large.any():
+        return None
+    size = 2 * config.changed_margin_px + 1
+    changed = cv2.dilate(large[labels].astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size)))
+    return changed == 0
+
+
 def register_depth(source: DepthView, target: DepthView, T_init: FloatArray,
                    config: DepthOdometryConfig = DepthOdometryConfig()) -> DepthFit | None:  # noqa: B008
     """T_target_source by coarse-to-fine projective point-to-plane ICP from ``T_init``; None when
@@ -309,15 +360,17 @@ def register_depth(source: DepthView, target: DepthView, T_init: FloatArray,
     sigma = math.hypot(*(noise.base_m + noise.quadratic_per_m * (z - noise.offset_m) ** 2
                          for z in (source.median_depth_m, target.median_depth_m)))
     final = max(config.min_distance_m, config.noise_sigmas * sigma)
-    T = np.asarray(T_init, dtype=np.float64)
     if len(config.coarse_strides) != len(config.coarse_distances_m):
         raise ValueError("coarse_strides and coarse_distances_m must have one entry per coarse round")
     rounds = [(s, d) for s, d in zip(config.coarse_strides, config.coarse_distances_m, strict=True) if d > final]
     rounds.append((config.final_stride, final))
-    for k, (stride, distance) in enumerate(rounds):
-        final_round = k == len(rounds) - 1
-        result = _gauss_newton(*source.points(stride), target, T, distance, config.iterations, config,
-                               grey_steps=not final_round or config.grey_in_final_round)
+    result = _rounds(source, target, T_init, rounds, config)
+    if result is None:
+        return None
+    T, A = result
+    keep = _unchanged(source, target, T, final, config)
+    if keep is not None:
+        result = _rounds(source, target, T_init, rounds, config, keep)
         if result is None:
             return None
         T, A = result
@@ -333,7 +386,7 @@ def register_depth(source: DepthView, target: DepthView, T_init: FloatArray,
     if (step_m > config.max_step_m or step_rad > config.max_step_rad or std_m > config.max_std_m
             or std_rad > config.max_std_rad):
         return None
-    p_source, _ = source.points(config.final_stride)
+    p_source, _ = source.points(config.final_stride, keep)
     p, q, n, has = _associate(p_source, target, T, final, nearest=False)
     r = np.full(len(p), np.inf)
     r[has] = np.abs(np.einsum("ij,ij->i", p[has] - q[has], n[has]))
