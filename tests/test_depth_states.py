@@ -248,3 +248,26 @@ def test_what_arrived_tells_a_drawer_pulled_out_from_one_pushed_in() -> None:
     # prismatic grid step 4 mm; the rim lands within the 3 cm depth tolerance of the closed front
     # over a +-3 cm band of states: the least-cost state is the centre of that band
     assert np.abs(states - true)[1:].max() < 0.02, np.round(states - true, 3)
+
+
+def test_front_axes_follow_the_edges_of_an_l_shaped_frame() -> None:
+    """What leaves of a glazed door is its frame's far bars: an L. Its principal axes run ~40 deg
+    across the door's edges; the hinge hypotheses need axes along them (minimum-area rectangle)."""
+    from funrec.parts.depth_proposal import _front_plane
+
+    rng = np.random.default_rng(0)
+    bottom = np.stack([rng.uniform(0.0, 0.5, 300), rng.uniform(0.0, 0.04, 300)], 1)
+    side = np.stack([rng.uniform(0.46, 0.5, 300), rng.uniform(0.0, 0.7, 300)], 1)
+    xy = np.concatenate([bottom, side])
+    tilt = np.radians(10.0)  # the door's edges 10 deg from the camera's axes, in a plane at z = 1.5
+    R = np.array([[np.cos(tilt), -np.sin(tilt)], [np.sin(tilt), np.cos(tilt)]])
+    xy = xy @ R.T
+    p = np.stack([xy[:, 0], xy[:, 1], np.full(len(xy), 1.5)], 1)
+    front = _front_plane(p, 0.01)
+    assert front is not None
+    _, normal, u_axis, v_axis = front
+    edges = np.array([[np.cos(tilt), np.sin(tilt), 0.0], [-np.sin(tilt), np.cos(tilt), 0.0]])
+    for axis in (u_axis, v_axis):
+        # each in-plane axis lies along one of the two edges, to a degree (the bars' 4 cm width and sampling)
+        assert np.degrees(np.arccos(np.abs(edges @ axis).max())) < 1.0
+    assert abs(normal[2]) > 0.999

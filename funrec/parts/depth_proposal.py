@@ -381,7 +381,7 @@ def _arrived(views: _Views, frames: IntArray) -> tuple[FloatArray, ...]:
 def _front_plane(p: FloatArray, tolerance_m: float, iterations: int = 200
                  ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray] | None:
     """The dominant plane of ``p``: its inlier points, unit normal and two in-plane unit axes
-    (principal directions of the inliers); None if no plane holds 30 % of the points.
+    (along the edges of the inliers' minimum-area rectangle); None if no plane holds 30 % of the points.
 
     A plain three-point RANSAC with a fixed seed, written here because Open3D's ``segment_plane``
     (the stack's plane fit) takes no seed in the installed version, and a twin must not change
@@ -404,7 +404,17 @@ def _front_plane(p: FloatArray, tolerance_m: float, iterations: int = 200
     x = p[inliers]
     centred = x - x.mean(0)
     _, _, vt = np.linalg.svd(centred, full_matrices=False)  # least-squares refit of the inliers' plane
-    normal, u_axis = vt[2], vt[0]
+    normal = vt[2]
+    # In-plane axes along the edges of the smallest rectangle around the points, not their principal
+    # axes: what leaves of a glazed door is its frame's far bars, an L whose principal axes run 30-45 deg
+    # across the door's edges (dark_rev_glass_wall_00: hinge 41 deg off).
+    uv = np.stack([centred @ vt[0], centred @ vt[1]], 1).astype(np.float32)
+    corners = cv2.boxPoints(cv2.minAreaRect(uv))
+    edge = corners[1] - corners[0]
+    if np.linalg.norm(edge) < 1e-9:
+        edge = corners[2] - corners[1]
+    edge = edge / max(float(np.linalg.norm(edge)), 1e-12)
+    u_axis = edge[0] * vt[0] + edge[1] * vt[1]
     return x, normal, u_axis, np.cross(normal, u_axis)
 
 
