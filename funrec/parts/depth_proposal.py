@@ -207,7 +207,7 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
         best_of["revolute"] = (cost, "revolute", axis, pivot)
     if "prismatic" in best_of:
         cost, _, axis, _ = best_of["prismatic"]
-        cost, (axis, _) = _descend(cost, (axis, None), len(config.hinge_refine_steps_deg), _slide_neighbours(config),
+        cost, (axis, _) = _descend(cost, (axis, None), len(config.hinge_refine_steps_deg), _slide_neighbours(normal, config),
                                    lambda a, p: score("prismatic", a, None))
         best_of["prismatic"] = (cost, "prismatic", axis, None)
     best = min(best_of.values(), key=lambda b: b[0]) if best_of else None
@@ -226,8 +226,15 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
             # depth's surface cost the textured rev_cabinet_left_00 ADD 95.5 -> 91.1, measured)
             return DepthProposal(joint_type, axis, pivot, points, np.zeros(F), cost, static, rival_cost, True)
         # a drawer's tracks often sit on what it carries, or on the walls beside a plain front: the tracks'
-        # joint (many tracks pin its axis) on depth's surface (plain drawers: ADD 42 -> 97, mIoU 44 -> 88)
-        cost, (joint_type, axis, pivot) = rival_cost, rival
+        # joint (many tracks pin its axis) on depth's surface (plain drawers: ADD 42 -> 97, mIoU 44 -> 88).
+        # A panel sliding along its front keeps depth's slide, the edges of the surface it uncovered
+        # (_slide_neighbours): its few tracks sit on the handle and the panel's edge and carry the camera's
+        # drift along the slide (proposal alone, against the tracks' slide in the bench at dc34b2a:
+        # plain_pri_wardrobe_00 0.3 against 13.8 deg, person_elbow_pri_wardrobe_00 0.3 against 2.0,
+        # mw_window_00 0.05 against 0.3; a drawer's slide across its front is the other way round,
+        # pri_drawer_00 7.6 against 1.5)
+        if abs(axis @ normal) >= np.cos(np.pi / 4):
+            cost, (joint_type, axis, pivot) = rival_cost, rival
     every = np.arange(F)
     arrival = replace(coarse_arrival, frames=every, p_world=_arrived(views, every))
     states = depth_states(capture, trajectory, joint_type, axis, pivot, points, np.zeros(1, np.int64), np.zeros(1),
@@ -456,14 +463,23 @@ def _hinge_neighbours(normal: FloatArray, config: DepthProposalConfig):
     return neighbours
 
 
-def _slide_neighbours(config: DepthProposalConfig):
-    """The slide direction tilted about two directions perpendicular to it by the k-th of
-    ``config.hinge_refine_steps_deg``."""
+def _slide_neighbours(normal: FloatArray, config: DepthProposalConfig):
+    """The slide direction turned by the k-th of ``config.hinge_refine_steps_deg``: a slide across the
+    front (a drawer) tilted about two directions perpendicular to it; a slide along the front (a
+    sliding door or panel) not at all. A panel slides in its own plane, along the edges of the
+    surface it uncovers (:func:`_front_plane`'s axes), and a plain panel looks the same wherever it
+    stands in that plane but at its edges: depth cannot turn its slide better than those edges.
+    On plain_pri_wardrobe_00 (proposal alone, its twin's poses and hand masks) tilting it out of the
+    plane ended 12.9 deg off (its points carried onto the fixed panel in front, and into the
+    carcass, where depth cannot refute them), turning it within the plane 16.3 deg off at cost
+    0.172, and the rectangle's edge, unturned, 0.3 deg off at cost 0.177."""
 
     def neighbours(axis: FloatArray, pivot: FloatArray | None, k: int) -> list[tuple[FloatArray, FloatArray | None]]:
+        step = config.hinge_refine_steps_deg[k]
+        if abs(axis @ normal) < np.cos(np.pi / 4):
+            return []
         first = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
         first /= np.linalg.norm(first)
-        step = config.hinge_refine_steps_deg[k]
         return [(_turned(axis, about, sign * step), None) for about in (first, np.cross(axis, first)) for sign in (1, -1)]
 
     return neighbours
