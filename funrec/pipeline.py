@@ -312,7 +312,16 @@ def _depth_part(window: WindowTracks, capture: Capture, trajectory: CameraTrajec
                              dataclasses.replace(config.affordances.hands, use_capture_masks=False))
         log.info("depth proposal: hands detected again in frames %d-%d with the proposed %s known",
                  window.first, window.last, proposal.joint_type)
-        proposal = propose_part(span, poses, lambda frame: hands.mask(frame), config.depth_proposal, joint)
+        first = proposal
+        # without the tracks' joint, the first proposal's joint is the rival: the masks detected again must not
+        # lose a joint that explains the surface as well (dark_rev_glass_wall_00: the first proposal's hinge,
+        # 0.4 deg, range 1.53 rad for 1.57, was replaced by one 41 deg off)
+        again = joint if joint is not None else (first.joint_type, first.axis_world, first.pivot_world)
+        proposal = propose_part(span, poses, lambda frame: hands.mask(frame), config.depth_proposal, again)
+        if joint is None and proposal is not None and proposal.rival_held:
+            log.info("depth proposal: the first proposal's %s holds against the one made with the hands detected again",
+                     first.joint_type)
+            proposal = first
         added = None
     if proposal is None:
         return None
