@@ -76,10 +76,12 @@ def whole_body_configurations(
     opening = grasp.opening
 
     scored = []
+    # The hand's poses are solved with a differential drive free to roll along its heading (as along the handle
+    # path): a telescoping arm reaches sideways, and its base's roll is what moves the hand along the front.
     for flip in (False, True):
         path = frames @ FLIP if flip else frames
         T_pre = offset_along_approach(path[0], config.pregrasp_distance)
-        q_pre, e_pos, e_rot = ik.solve(T_pre, q_start, posture[0], start_state, opening, unload=unload)
+        q_pre, e_pos, e_rot = ik.solve(T_pre, q_start, posture[0], start_state, opening, unload=unload, rolling=True)
         score = e_pos + 0.1 * e_rot + 0.01 * float(np.linalg.norm(q_pre - q_start))
         scored.append((score, flip, path, q_pre, e_pos, e_rot))
     scored.sort(key=lambda item: item[0])
@@ -109,7 +111,7 @@ def _from_pregrasp(
     start_state = float(states[0])
     opening, holding = grasp.opening, grasp.holding
     _require(e_pos, e_rot, config, "pre-grasp pose", start_state, task)
-    q_grasp, e_pos, e_rot = ik.solve(path[0], q_pre, posture[0], start_state, opening, unload=unload)
+    q_grasp, e_pos, e_rot = ik.solve(path[0], q_pre, posture[0], start_state, opening, unload=unload, rolling=True)
     _require(e_pos, e_rot, config, "grasp pose", start_state, task)
 
     # Up to the pre-grasp pose nothing of the scene may be touched, the handle included (a swing through it
@@ -121,7 +123,7 @@ def _from_pregrasp(
     hit = first_collision(model, ik, _ruckig_samples(robot, q_start, q_pre, config), start_state, opening, allowed, floor)
     if hit is not None:
         T_via = offset_along_approach(path[0], config.via_distance)
-        q_via, e_pos, e_rot = ik.solve(T_via, q_start, posture[0], start_state, opening)
+        q_via, e_pos, e_rot = ik.solve(T_via, q_start, posture[0], start_state, opening, rolling=True)
         # The via pose only leads the hand around an obstacle, in free space: it need not be met to the
         # millimetre, nor in orientation (what it must be, collision-free, is checked below).
         _require(e_pos, e_rot, config, "approach via pose", start_state, task, (config.via_position_tolerance, np.pi))

@@ -112,12 +112,18 @@ def test_stretch_plans_its_four_arm_stages_as_one_joint(stretch) -> None:
     assert robot.drive == "differential" and robot.arm_joints[:2] == ("joint_lift", "joint_arm_l0")
     assert robot.couplings["joint_arm_l3"] == ("joint_arm_l0", 1.0)
     assert robot.couplings["joint_gripper_finger_left_open"] == ("joint_gripper_slide", 10.0)
-    # the mast lifts the shoulder 0-1.1 m; the telescope reaches out to the robot's right: its 0.52 m of travel
-    # less the IK's margin at both ends (a quarter of 5 cm per stage), plus the wrist's offsets
+    # the mast lifts the shoulder 0-1.1 m; the telescope reaches out to the robot's right: its "shoulder" is the
+    # telescope's end drawn in, and it reaches along the slide its 0.52 m of travel less the IK's margin at the
+    # far end (a quarter of 5 cm per stage), from the margin at the near end on
     assert geometry.lift_range[1] - geometry.lift_range[0] == pytest.approx(1.1)
     assert geometry.reach_yaw == pytest.approx(-np.pi / 2, abs=1e-3)
-    assert 0.42 < geometry.reach < 0.5 and 0.05 < geometry.reach_min < 0.15
-    assert geometry.reach - geometry.reach_min > 0.3  # straight distances: the wrist sits off the slide's line
+    assert geometry.reach == pytest.approx(0.47, abs=2e-3) and geometry.reach_min == pytest.approx(0.05, abs=2e-3)
+    # the shoulder lies on the line the wrist travels along (the slide's, 2 cm behind the base's turning axis)
+    assert geometry.p_base_shoulder[0] == pytest.approx(-0.021, abs=2e-3)
+    # a horizontal telescope raises nothing: the mast's top plus the wrist-to-grasp length bounds the handles
+    assert geometry.reach_up == pytest.approx(0.0, abs=1e-6)
+    band = reach_band(geometry)
+    assert 1.4 < band.high < 1.6 and band.low == 0.0
 
 
 def test_coupled_stages_follow_their_leader_in_the_model_and_the_ik(stretch) -> None:
