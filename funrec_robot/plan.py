@@ -286,8 +286,8 @@ def _handle_path(
     if not candidates and not graspable_tilts(robot, task, geometry, config.grasp):
         size = "" if task.handle_width is None else f" ({1000 * task.handle_width:.0f} mm thick)"
         raise Refusal(
-            f"part '{task.part}': the gripper cannot take the handle{size} at any tilt: its bar meets the palm or "
-            "the fingertips meet the part's front"
+            f"part '{task.part}': the gripper cannot take the handle{size} at any tilt: it is wider than the jaws "
+            "open, or its bar meets the palm, or the fingertips meet the part's front"
         )
     if not candidates:
         raise Refusal(

@@ -63,6 +63,9 @@ class RobotGeometry:
     """(near, far) extent of the finger pads along the grasp z, relative to the grasp frame, m."""
     finger_corners: FloatArray
     """(M, 3) corners of the finger geoms' boxes in the grasp frame with the gripper open, m."""
+    closed_finger_corners: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+    """The same with the gripper at its closed command: a hinged jaw (Spot's) reaches further forward closed
+    than open, and closes on the handle with its tip there."""
     palm_corners: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
     """(P, 3) corners of the boxes of the hand's other geoms (palm, gripper body) in the grasp frame, m."""
     lift_range: tuple[float, float] | None = None
@@ -76,6 +79,9 @@ class RobotGeometry:
     reach_yaw: float = 0.0
     """Direction the arm reaches out in, as a yaw about the base's z from its x axis, rad: the extending direction
     of a telescoping arm's horizontal slide, else 0 (forward)."""
+    fixed_jaw: tuple[float, float] | None = None
+    """A one-jaw gripper's fixed jaw: (grasp y of its inner face, the side it lies on, -1 or +1), m; None when
+    every jaw moves. A handle taken at the grasp point would sit in it by half its thickness."""
     reach_up: float | None = None
     """How far the arm itself moves the wrist up or down from the shoulder, m: None for an arm of revolute joints
     (its reach, any way), a telescoping arm's travel times the sine of its slide's elevation (0 for a horizontal
@@ -147,7 +153,20 @@ def _measure(robot: RobotDescription) -> RobotGeometry:
     far = np.array([((_corners(model, data, [g]) - p_grasp) @ R_world_grasp)[:, 2].max() for g in palm_geoms])
     jaws = palm_geoms[far >= tip - FIXED_JAW_REACH_M] if len(palm_geoms) else palm_geoms
     finger_geoms, palm_geoms = np.union1d(finger_geoms, jaws), np.setdiff1d(palm_geoms, jaws)
+    fixed_jaw = None
+    if len(jaws):
+        y = ((_corners(model, data, jaws) - p_grasp) @ R_world_grasp)[:, 1]
+        side = -1.0 if float(y.mean()) < 0.0 else 1.0
+        fixed_jaw = (float(y.max() if side < 0 else y.min()), side)
 
+    data.qpos[indices.gripper_qpos] = robot.gripper.closed
+    apply_couplings(indices, data.qpos)
+    mujoco.mj_kinematics(model, data)
+    closed_fingers = (_corners(model, data, finger_geoms) - data.site_xpos[indices.grasp_site]) @ data.site_xmat[
+        indices.grasp_site].reshape(3, 3)
+    data.qpos[indices.gripper_qpos] = robot.gripper.open
+    apply_couplings(indices, data.qpos)
+    mujoco.mj_kinematics(model, data)
     body_corners = _corners(model, data, body_geoms)
     arm_corners = _corners(model, data, arm_geoms)
     finger_grasp = (_corners(model, data, finger_geoms) - p_grasp) @ R_world_grasp
@@ -168,12 +187,14 @@ def _measure(robot: RobotDescription) -> RobotGeometry:
         fingertip_depth=float(finger_z.max()),
         finger_depth_range=(float(finger_z.min()), float(finger_z.max())),
         finger_corners=finger_grasp,
+        closed_finger_corners=closed_fingers,
         palm_corners=(_corners(model, data, palm_geoms) - p_grasp) @ R_world_grasp if len(palm_geoms) else np.zeros((0, 3)),
         lift_range=lift_range,
         lift_sign=lift_sign,
         reach_min=reach_min,
         reach_yaw=reach_yaw,
         reach_up=reach_up,
+        fixed_jaw=fixed_jaw,
     )
 
 

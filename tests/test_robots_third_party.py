@@ -202,3 +202,32 @@ def test_the_grasp_site_is_placed_once_per_robot_model(tiago) -> None:
     site = sim_model.robot_indices(tiago, fresh).grasp_site
     np.testing.assert_array_equal(again.site_pos[site], fresh.site_pos[site])
     np.testing.assert_array_equal(again.site_quat[site], fresh.site_quat[site])
+
+
+def test_spot_takes_a_bar_beside_its_fixed_jaw_and_refuses_one_wider_than_its_jaws_open() -> None:
+    import dataclasses
+
+    from funrec_robot.grasp import GraspConfig, graspable_tilts, jaw_offset
+
+    robot = load_robot(ROBOTS / "spot_arm.yaml")
+    geometry = measure_robot(robot)
+    face, side = geometry.fixed_jaw
+    assert side == -1.0 and abs(face) < 0.002  # the grasp point lies on the fixed jaw's inner face
+    task = ArticulationTask(part="part_0", joint_type="revolute", axis_world=[0, 0, 1], pivot_world=[0.0, 1.0, 0.0],
+                            state_range=(0.0, 1.5), state_current=0.0, p_world_contact=[0.4, 1.0, 0.8],
+                            approach_world=[0, 1, 0], handle_axis_world=[0, 0, 1], surface_offset=0.03)
+    bar = dataclasses.replace(task, handle_width=0.02)
+    # the bar's centre 10 mm (half its thickness) and 3 mm of clearance above the jaw's face
+    assert jaw_offset(bar, geometry, GraspConfig()) == pytest.approx(face + 0.013, abs=1e-6)
+    wide = dataclasses.replace(task, handle_width=0.09, handle_depth=0.09)  # the jaws open 75 mm
+    assert graspable_tilts(robot, wide, geometry, GraspConfig()) == []
+
+
+def test_stretchs_fingers_are_its_hand(stretch) -> None:
+    from funrec_robot.sim_model import build_mujoco_model, hand_bodies, robot_indices
+
+    robot, _ = stretch
+    model = build_mujoco_model(robot)
+    names = {model.body(b).name for b in hand_bodies(robot, model, robot_indices(robot, model).grasp_site)}
+    # the grasp site hangs on a body of its own beside the finger slide: the hand is the body carrying both
+    assert {"robot/link_SG3_gripper_body", "robot/rubber_tip_left", "robot/link_grasp_center"} <= names
