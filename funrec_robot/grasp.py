@@ -43,8 +43,12 @@ class GraspConfig:
     grip_squeeze: float = 0.002
     """Each finger is commanded this far into the handle while holding it (a light squeeze), m."""
     fixed_jaw_clearance: float = 0.003
-    """Gap between a fixed jaw and the handle as the hand comes onto it, m: the moving jaw then closes the handle
+    """Gap between a fixed jaw and a bar handle as the hand comes onto it, m: the moving jaw then closes the handle
     onto the fixed one."""
+    fixed_jaw_knob_clearance: float = 0.012
+    """The same for a knob, m. Measured with Spot on the bench's three knob doors (peak handle force on the last
+    approach): 58-91 N at 3 mm, 39-51 N at 8 mm, 7-44 N at 12 mm; bars pass at 3 mm and fail at 8 or 12 mm (a
+    microwave 126 N, a cabinet door 148 N). Why a knob wants more room was not found."""
     release_gap: float = 0.005
     """On letting go each finger opens this far clear of the handle, m."""
     max_roll: float = float(np.deg2rad(45.0))
@@ -250,14 +254,16 @@ def _towards_fall_roll(
 
 def jaw_offset(task: ArticulationTask, geometry: RobotGeometry, config: GraspConfig) -> float:
     """Where the handle's centre sits along the grasp y, m: 0 for a gripper whose jaws all move; with a fixed jaw
-    (Spot's), as far from the grasp point as keeps the handle ``fixed_jaw_clearance`` off the jaw's inner face. A
+    (Spot's), as far from the grasp point as keeps the handle ``fixed_jaw_clearance`` (a knob
+    ``fixed_jaw_knob_clearance``) off the jaw's inner face. A
     handle taken at the grasp point sat in Spot's fixed jaw by half its thickness (4-16 mm): the jaw struck it
     with 52-73 N on the last approach."""
     if geometry.fixed_jaw is None:
         return 0.0
     face, side = geometry.fixed_jaw
     width = task.handle_width if task.handle_width is not None else config.unknown_handle_width
-    centre = face - side * (width / 2.0 + config.fixed_jaw_clearance)
+    clearance = config.fixed_jaw_clearance if task.handle_axis_world is not None else config.fixed_jaw_knob_clearance
+    centre = face - side * (width / 2.0 + clearance)
     return centre if side * centre < 0.0 else 0.0
 
 
