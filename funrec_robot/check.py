@@ -33,7 +33,7 @@ from funrec_robot.controller import Admittance, AdmittanceConfig, ServoModel
 from funrec_robot.plan_file import Plan, release_offset
 from funrec_robot.robot import RobotDescription
 from funrec_robot.scene import bodies_geoms, floor_geoms, geom_boxes, part_geoms, part_joint, subtree_bodies
-from funrec_robot.sim_model import apply_couplings, build_mujoco_spec, gripper_position, robot_indices
+from funrec_robot.sim_model import apply_couplings, build_mujoco_spec, gripper_position, hand_bodies, robot_indices
 from funrec_robot.video import FrameRecorder, check_camera, write_video
 
 log = logging.getLogger(__name__)
@@ -241,7 +241,7 @@ class _Execution:
         self.admittance = Admittance(model, self.indices.grasp_site, self.indices.dof, len(robot.base_joints), config.admittance, self.servos)
         robot_geoms = bodies_geoms(model, self.indices.bodies)
         self.robot_geoms = set(robot_geoms.tolist())
-        self._gripper_array = bodies_geoms(model, subtree_bodies(model, self.hand_body))
+        self._gripper_array = bodies_geoms(model, hand_bodies(robot, model, self.indices.grasp_site))
         self.gripper_geoms = set(self._gripper_array.tolist())
         self.part_geoms = part_geoms(model, self.joint)
         scene = np.setdiff1d(np.arange(model.ngeom), robot_geoms)

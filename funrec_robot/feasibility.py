@@ -22,9 +22,8 @@ from funrec_robot.scene import (
     part_geoms,
     part_joint,
     robot_bodies,
-    subtree_bodies,
 )
-from funrec_robot.sim_model import apply_couplings, robot_indices
+from funrec_robot.sim_model import apply_couplings, hand_bodies, robot_indices
 
 
 class GravityOverload(PlanningError):
@@ -146,8 +145,7 @@ def kinematic_collisions(
     qadr = model.jnt_qposadr[joint]
     part = set(part_geoms(model, joint).tolist())
     robot_set = set(bodies_geoms(model, indices.bodies).tolist())
-    hand = int(model.site_bodyid[indices.grasp_site])
-    gripper = set(bodies_geoms(model, subtree_bodies(model, hand)).tolist())
+    gripper = set(bodies_geoms(model, hand_bodies(robot, model, indices.grasp_site)).tolist())
     data = mujoco.MjData(model)
     out = []
     T0 = plan.T_world_grasp_start

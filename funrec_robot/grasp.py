@@ -42,6 +42,13 @@ class GraspConfig:
     """Each finger opens this much wider than half the handle's thickness before closing on it, m."""
     grip_squeeze: float = 0.002
     """Each finger is commanded this far into the handle while holding it (a light squeeze), m."""
+    fixed_jaw_clearance: float = 0.003
+    """Gap between a fixed jaw and a bar handle as the hand comes onto it, m: the moving jaw then closes the handle
+    onto the fixed one."""
+    fixed_jaw_knob_clearance: float = 0.012
+    """The same for a knob, m. Measured with Spot on the bench's three knob doors (peak handle force on the last
+    approach): 58-91 N at 3 mm, 39-51 N at 8 mm, 7-44 N at 12 mm; bars pass at 3 mm and fail at 8 or 12 mm (a
+    microwave 126 N, a cabinet door 148 N). Why a knob wants more room was not found."""
     release_gap: float = 0.005
     """On letting go each finger opens this far clear of the handle, m."""
     max_roll: float = float(np.deg2rad(45.0))
@@ -83,6 +90,11 @@ class GraspCandidate:
     """Gripper command while holding."""
     frames: FloatArray
     """(N, 4, 4) T_world_grasp along the path states."""
+    max_roll: float | None = None
+    """The roll limit ``frames`` were made with (``handle_frames``); None: ``GraspConfig.max_roll``."""
+    offset: float = 0.0
+    """Where the handle's centre sits along the grasp y, m: 0 between two moving jaws; with a fixed jaw, off it by
+    ``GraspConfig.fixed_jaw_clearance`` (``jaw_offset``). The hand's targets are ``frames @ offset_frame(offset)``."""
 
 
 FLIP = np.diag([-1.0, -1.0, 1.0, 1.0])
@@ -177,14 +189,36 @@ def about_contact(axis: int, angles: FloatArray, depth: float) -> FloatArray:
     return shift @ R @ np.linalg.inv(shift)
 
 
+def knob_roll_limit(task: ArticulationTask, geometry: RobotGeometry, depth: float, config: GraspConfig) -> float:
+    """Largest turn of a knob between the pads (about the grasp y through the contact point) that keeps every
+    finger and palm corner ``min_fingertip_clearance`` in front of the part's front, up to ``max_roll``, rad.
+
+    Held still while the part swings, the hand sees the front turn towards it about the knob: a wide jaw's
+    corners beside the knob then meet the front (Spot's jaws 14-23 mm inside a door at 0.38 rad with the
+    hand held still; the IK stopped 20 mm short). Beyond this turn the hand turns with the part."""
+    if task.handle_axis_world is not None:
+        return config.max_roll
+    offset = task.surface_offset if task.surface_offset is not None else config.unknown_surface_offset
+    corners = np.vstack([geometry.finger_corners, geometry.closed_finger_corners, geometry.palm_corners])
+    lateral, ahead = np.abs(corners[:, 0]), corners[:, 2] - depth
+    limit = 0.0
+    for phi in np.linspace(0.0, config.max_roll, 46):
+        if np.any(lateral * np.sin(phi) + ahead * np.cos(phi) > offset - config.min_fingertip_clearance):
+            break
+        limit = float(phi)
+    return limit
+
+
 def handle_frames(
-    task: ArticulationTask, states: FloatArray, depth: float, tilt: float, config: GraspConfig
+    task: ArticulationTask, states: FloatArray, depth: float, tilt: float, config: GraspConfig,
+    max_roll: float | None = None,
 ) -> FloatArray:
     """(N, 4, 4) grasp frames along the path.
 
     The grasp is first tilted by ``tilt`` about the handle (its free axis for a bar, its horizontal x for a
     knob) through the contact point, then along the path rolled about the free axis so that the gripper turns
-    as little as the pads allow (a bar's total roll stays within ``max_roll``).
+    as little as the pads allow (a bar's total roll stays within ``max_roll``, a knob's within ``max_roll`` if
+    given: ``knob_roll_limit``).
     """
     axis = grasp_free_axis(task)
     pitch_axis = tilt_axis(task)
@@ -192,7 +226,8 @@ def handle_frames(
     frames = T_world_grasp_path(task, states, T0)
     roll = roll_to_hold(frames[:, :3, :3], frames[0, :3, :3], axis, np.inf)
     spent = tilt if pitch_axis == axis else 0.0
-    roll = np.clip(roll, -config.max_roll - spent, config.max_roll - spent)
+    limit = config.max_roll if max_roll is None else max_roll
+    roll = np.clip(roll, -limit - spent, limit - spent)
     if config.fall_state is not None and task.joint_type == "revolute" and task.handle_axis_world is not None:
         roll = _towards_fall_roll(task, states, T0, roll, spent, depth, config)
     return frames @ about_contact(axis, roll, depth)
@@ -217,6 +252,28 @@ def _towards_fall_roll(
     return (1.0 - weight) * roll + weight * target
 
 
+def jaw_offset(task: ArticulationTask, geometry: RobotGeometry, config: GraspConfig) -> float:
+    """Where the handle's centre sits along the grasp y, m: 0 for a gripper whose jaws all move; with a fixed jaw
+    (Spot's), as far from the grasp point as keeps the handle ``fixed_jaw_clearance`` (a knob
+    ``fixed_jaw_knob_clearance``) off the jaw's inner face. A
+    handle taken at the grasp point sat in Spot's fixed jaw by half its thickness (4-16 mm): the jaw struck it
+    with 52-73 N on the last approach."""
+    if geometry.fixed_jaw is None:
+        return 0.0
+    face, side = geometry.fixed_jaw
+    width = task.handle_width if task.handle_width is not None else config.unknown_handle_width
+    clearance = config.fixed_jaw_clearance if task.handle_axis_world is not None else config.fixed_jaw_knob_clearance
+    centre = face - side * (width / 2.0 + clearance)
+    return centre if side * centre < 0.0 else 0.0
+
+
+def offset_frame(offset: float) -> FloatArray:
+    """(4, 4) the hand's target relative to the handle frame for a handle ``offset`` along the grasp y."""
+    T = np.eye(4)
+    T[1, 3] = -offset
+    return T
+
+
 def offset_along_approach(T_world_grasp: FloatArray, distance: float) -> FloatArray:
     """(4, 4) the grasp frame moved back by ``distance`` (m) against its approach (z)."""
     T = T_world_grasp.copy()
@@ -227,10 +284,16 @@ def offset_along_approach(T_world_grasp: FloatArray, distance: float) -> FloatAr
 def graspable_tilts(
     robot: RobotDescription, task: ArticulationTask, geometry: RobotGeometry, config: GraspConfig
 ) -> list[tuple[float, float, float, float]]:
-    """(tilt, opening command, holding command, depth) of the tilts at which the fingers take the handle clear of
-    the part's front and the palm (``grasp_depth``), in ``config.tilts`` order."""
+    """(tilt, opening command, holding command, depth) of the tilts at which the open jaws are wider than the handle
+    and the fingers take it clear of the part's front and the palm (``grasp_depth``), in ``config.tilts`` order."""
     out = []
+    gripper = robot.gripper
     for tilt in config.tilts:
+        if task.handle_width is not None:  # a handle wider across the pads than the jaws open cannot be taken
+            depth_across = task.handle_width if task.handle_depth is None else task.handle_depth
+            across = task.handle_width * np.cos(tilt) + depth_across * abs(np.sin(tilt))
+            if (gripper.command(across / 2.0) - gripper.closed) / (gripper.open - gripper.closed) > 1.0:
+                continue
         opening, holding = opening_commands(robot, task, config, tilt)
         depth = grasp_depth(task, geometry, opening, tilt, config)
         if depth is not None:
@@ -251,12 +314,15 @@ def grasp_candidates(
     target beyond ``r_max`` (m) above or below the shoulder, are left out."""
     scored = []
     for tilt, opening, holding, depth in graspable_tilts(robot, task, geometry, config):
-        frames = handle_frames(task, states, depth, tilt, config)
+        max_roll = knob_roll_limit(task, geometry, depth, config)
+        frames = handle_frames(task, states, depth, tilt, config, max_roll)
         wrist = frames[:, :3, 3] - frames[:, :3, 2] * geometry.wrist_to_grasp
         rise = float(np.max(np.abs(wrist[:, 2] - geometry.p_base_shoulder[2])))
         if rise < r_max:
             score = max(rise - config.tilt_deadband, 0.0) + config.tilt_cost * abs(tilt)
-            scored.append((score, GraspCandidate(tilt, depth, opening, holding, frames)))
+            scored.append((score, GraspCandidate(
+                tilt, depth, opening, holding, frames, max_roll=max_roll, offset=jaw_offset(task, geometry, config)
+            )))
     scored.sort(key=lambda item: item[0])
     return [candidate for _, candidate in scored]
 
@@ -271,7 +337,10 @@ __all__ = [
     "grasp_depth",
     "graspable_tilts",
     "handle_frames",
+    "jaw_offset",
+    "knob_roll_limit",
     "offset_along_approach",
+    "offset_frame",
     "opening_commands",
     "release_command",
     "tilt_axis",

@@ -22,7 +22,7 @@ from funrec_robot.budget import check_time_limit
 from funrec_robot.collision_limit import BoxedCollisionLimit
 from funrec_robot.robot import RobotDescription
 from funrec_robot.scene import bodies_geoms, floor_geoms, gravity_load, subtree_bodies
-from funrec_robot.sim_model import ROBOT_PREFIX, apply_couplings, robot_indices
+from funrec_robot.sim_model import ROBOT_PREFIX, apply_couplings, hand_bodies, robot_indices
 
 log = logging.getLogger(__name__)
 
@@ -55,6 +55,9 @@ class IKConfig:
     posture_cost_rolling_base: float = 0.005
     """The same for a differential-drive base: low, so that it turns and rolls with the handle before the arm
     winds into its joint limits (TIAGo on a cabinet door opened 90 degrees: tracked at 0.005, 24 cm off at 0.2)."""
+    posture_cost_rolling_yaw: float = 0.005
+    """The same for a differential-drive base's heading (the planner raises it to ``posture_cost_base`` for a
+    telescoping arm, see ``plan``)."""
     limit_margin: float = 0.05
     """Planned joint positions stay this far inside the position limits (room for the compliant controller
     to move the arm either way), rad or m."""
@@ -80,6 +83,10 @@ class IKConfig:
     """Scene geoms within this distance of the region of interest are avoided, m."""
     solver: str = "daqp"
     """QP solver used through qpsolvers."""
+    release_iterations: int = 60
+    """Differential-IK steps after a stall short of the target with the posture reference moved to the stalled
+    configuration (0: none): the posture task no longer pulls the hand off the target (Stretch 3 stalled 4-6 mm
+    off with its base rolled 0.4 m from the planned stop)."""
     gravity_cost: float = 0.5
     """Weight of the task that keeps each arm joint's gravity load below ``gravity_free_share`` of its effort
     limit (0 turns it off): the arm's null space (elbow, base) is used to unload weak wrist joints."""
@@ -204,7 +211,8 @@ class WholeBodyIK:
         allowed_geoms: scene geoms the gripper may touch (the handle).
         config: settings.
         freeze_base: a differential-drive base: :meth:`solve` keeps its x and y where the solve starts (it
-            may turn on the spot), :meth:`track` lets it roll along its heading as well (``HeadingConstraint``).
+            may turn on the spot), unless asked to let it roll along its heading (``rolling``, as
+            :meth:`track` always does; ``HeadingConstraint``).
     """
 
     def __init__(
@@ -249,6 +257,8 @@ class WholeBodyIK:
         )
         posture_cost = np.zeros(model.nv)
         posture_cost[self.indices.dof[: self.n_base]] = config.posture_cost_rolling_base if freeze_base else config.posture_cost_base
+        if freeze_base and "yaw" in robot.base_motions:
+            posture_cost[self.indices.dof[robot.base_motions.index("yaw")]] = config.posture_cost_rolling_yaw
         posture_cost[self.indices.dof[self.n_base :]] = config.posture_cost_arm
         self.posture_task = mink.PostureTask(model, cost=posture_cost)
         self.tasks: list[mink.Task] = [self.frame_task, self.posture_task]
@@ -311,8 +321,7 @@ class WholeBodyIK:
         collides = (model.geom_contype != 0) | (model.geom_conaffinity != 0)
         robot_geoms = bodies_geoms(model, self.indices.bodies)
         robot_geoms = robot_geoms[collides[robot_geoms]]
-        hand_body = int(model.site_bodyid[self.indices.grasp_site])
-        gripper = np.intersect1d(robot_geoms, bodies_geoms(model, subtree_bodies(model, hand_body)))
+        gripper = np.intersect1d(robot_geoms, bodies_geoms(model, hand_bodies(robot, model, self.indices.grasp_site)))
         arm_root = int(model.jnt_bodyid[model.joint(ROBOT_PREFIX + robot.arm_joints[0]).id])
         arm = np.intersect1d(robot_geoms, bodies_geoms(model, subtree_bodies(model, arm_root)))
         body = np.setdiff1d(robot_geoms, arm)
@@ -388,6 +397,12 @@ class WholeBodyIK:
         iterations = cfg.max_iterations if max_iterations is None else max_iterations
         self._active = self.rolling_constraints if rolling else self.constraints
         position_error, orientation_error = self._iterate([self.frame_task, self.posture_task], iterations)
+        if not self._reached(position_error, orientation_error) and cfg.release_iterations > 0:
+            # Stalled short of the target: the posture task's pull towards its reference (the planned base
+            # stop, home) balances the frame task's millimetres. Released (its reference moved to where the
+            # robot is), only the limits hold the hand back.
+            self.posture_task.set_target(self.configuration.q.copy())
+            position_error, orientation_error = self._iterate([self.frame_task, self.posture_task], cfg.release_iterations)
         q = self.configuration.q[self.indices.qpos].copy()
         gravity = self.tasks[2:]
         if not unload or not gravity or not self._reached(position_error, orientation_error):

@@ -104,6 +104,7 @@ def _placement_problem(
         start_part=part_sweep_footprint(model, joint, [states[0]], z_band),
         reach_yaw=geometry.reach_yaw,
         reach_min=geometry.reach_min,
+        rolling=robot.drive == "differential",
     )
 
 
@@ -285,8 +286,8 @@ def _handle_path(
     if not candidates and not graspable_tilts(robot, task, geometry, config.grasp):
         size = "" if task.handle_width is None else f" ({1000 * task.handle_width:.0f} mm thick)"
         raise Refusal(
-            f"part '{task.part}': the gripper cannot take the handle{size} at any tilt: its bar meets the palm or "
-            "the fingertips meet the part's front"
+            f"part '{task.part}': the gripper cannot take the handle{size} at any tilt: it is wider than the jaws "
+            "open, or its bar meets the palm, or the fingertips meet the part's front"
         )
     if not candidates:
         raise Refusal(
@@ -315,8 +316,8 @@ def _search(
         PlanningError: the error of the furthest step reached (IK beats base placement).
     """
     config, candidates, states = handle.config, handle.candidates, handle.states
-    # A differential-drive base cannot follow the sideways steps between stops: it stands at one stop.
-    max_stops = 1 if robot.drive == "differential" else config.max_base_stops
+    # A differential drive's stops lie on its line of travel (PlacementProblem.rolling): it rolls between them.
+    max_stops = config.max_base_stops
     # Each stop serves at least one path state: a short path (a part barely opened, a twin's small range) with
     # more stops than states left a stop without states, and an IndexError reached the user.
     max_stops = min(max_stops, len(states))
@@ -533,6 +534,12 @@ def _plan_interaction(robot: RobotDescription, scene_xml: str | Path, task: Arti
     if geometry.lift_range is not None:  # a torso or mast starts at the handle's height; the IK moves it on
         robot = lifted(robot, geometry, handle_height(task), config.ik.limit_margin)
         geometry = measure_robot(robot)
+    if geometry.reach_min > 0.0 and robot.drive == "differential":
+        # A telescoping arm reaches along a line the base's heading sets: a turn of the base swings it all. Its
+        # base holds its planned heading as a holonomic base holds its pose, and rolls (Stretch 3 turned by up to
+        # 2 rad as a door opened, drew its telescope in to the stop and missed the handle by 6-8 mm). An arm with
+        # a shoulder that pans turns with its base cheaply (TIAGo follows a door round so).
+        config = replace(config, ik=replace(config.ik, posture_cost_rolling_yaw=config.ik.posture_cost_base))
     handle = _handle_path(robot, model, joint, task, geometry, target, start, config)
     lap("path")
     solution = _search(robot, model, joint, task, geometry, handle, cpu_started)

@@ -49,10 +49,12 @@ class ReachBand:
 
 
 def reach_band(geometry: RobotGeometry) -> ReachBand:
-    """The band of handle heights within the arm's reach plus the wrist-to-grasp length of the shoulder."""
+    """The band of handle heights within the arm's reach plus the wrist-to-grasp length of the shoulder (for a
+    telescoping arm, what its slide moves the wrist up or down, ``RobotGeometry.reach_up``, in place of its
+    reach: a horizontal telescope raises nothing)."""
     z = float(geometry.p_base_shoulder[2])
     down, up = geometry.lift_range if geometry.lift_range is not None else (0.0, 0.0)
-    r = geometry.reach + geometry.wrist_to_grasp
+    r = (geometry.reach if geometry.reach_up is None else geometry.reach_up) + geometry.wrist_to_grasp
     return ReachBand(max(z + down - r, 0.0), z + up + r, (z + down, z + up))
 
 

@@ -15,7 +15,14 @@ from funrec.typed import FloatArray
 from funrec_robot.ik import IKConfig
 from funrec_robot.robot import RobotDescription
 from funrec_robot.scene import box_corners, geom_boxes, subtree_bodies
-from funrec_robot.sim_model import RobotIndices, apply_couplings, build_mujoco_model, reset_to_home, robot_indices
+from funrec_robot.sim_model import (
+    RobotIndices,
+    apply_couplings,
+    build_mujoco_model,
+    hand_bodies,
+    reset_to_home,
+    robot_indices,
+)
 
 FIXED_JAW_REACH_M = 0.02
 """A geom of the hand (not of a finger) reaching this close to the fingertips along the approach is a fixed
@@ -56,6 +63,9 @@ class RobotGeometry:
     """(near, far) extent of the finger pads along the grasp z, relative to the grasp frame, m."""
     finger_corners: FloatArray
     """(M, 3) corners of the finger geoms' boxes in the grasp frame with the gripper open, m."""
+    closed_finger_corners: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+    """The same with the gripper at its closed command: a hinged jaw (Spot's) reaches further forward closed
+    than open, and closes on the handle with its tip there."""
     palm_corners: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
     """(P, 3) corners of the boxes of the hand's other geoms (palm, gripper body) in the grasp frame, m."""
     lift_range: tuple[float, float] | None = None
@@ -69,6 +79,13 @@ class RobotGeometry:
     reach_yaw: float = 0.0
     """Direction the arm reaches out in, as a yaw about the base's z from its x axis, rad: the extending direction
     of a telescoping arm's horizontal slide, else 0 (forward)."""
+    fixed_jaw: tuple[float, float] | None = None
+    """A one-jaw gripper's fixed jaw: (grasp y of its inner face, the side it lies on, -1 or +1), m; None when
+    every jaw moves. A handle taken at the grasp point would sit in it by half its thickness."""
+    reach_up: float | None = None
+    """How far the arm itself moves the wrist up or down from the shoulder, m: None for an arm of revolute joints
+    (its reach, any way), a telescoping arm's travel times the sine of its slide's elevation (0 for a horizontal
+    slide: the lift alone raises its wrist)."""
 
 
 def _circles(corners: FloatArray, z_low: float, z_high: float) -> tuple[Circle, ...]:
@@ -114,7 +131,7 @@ def _measure(robot: RobotDescription) -> RobotGeometry:
     apply_couplings(indices, data.qpos)
     mujoco.mj_kinematics(model, data)
     arm = [model.joint(f"robot/{name}").id for name in robot.arm_joints]
-    shoulder, reach, reach_min, reach_yaw = _shoulder_reach(robot, model, data, indices, arm)
+    shoulder, reach, reach_min, reach_yaw, reach_up = _shoulder_reach(robot, model, data, indices, arm)
     wrist = data.xanchor[arm[-2]].copy()
     p_grasp = data.site_xpos[indices.grasp_site]
     R_world_grasp = data.site_xmat[indices.grasp_site].reshape(3, 3)
@@ -128,15 +145,28 @@ def _measure(robot: RobotDescription) -> RobotGeometry:
         subtree_bodies(model, int(model.jnt_bodyid[model.joint(f"robot/{name}").id])) for name in robot.gripper.joints
     ]))
     finger_geoms = all_geoms[np.isin(model.geom_bodyid[all_geoms], finger_bodies)]
-    hand_bodies = subtree_bodies(model, int(model.site_bodyid[indices.grasp_site]))
-    palm_geoms = np.setdiff1d(all_geoms[np.isin(model.geom_bodyid[all_geoms], hand_bodies)], finger_geoms)
+    hand = hand_bodies(robot, model, indices.grasp_site)
+    palm_geoms = np.setdiff1d(all_geoms[np.isin(model.geom_bodyid[all_geoms], hand)], finger_geoms)
     # A one-jaw gripper's fixed jaw belongs to the hand's body but reaches as far as the moving jaw: it is a
     # finger (the handle sits against it), not palm.
     tip = float(((_corners(model, data, finger_geoms) - p_grasp) @ R_world_grasp)[:, 2].max())
     far = np.array([((_corners(model, data, [g]) - p_grasp) @ R_world_grasp)[:, 2].max() for g in palm_geoms])
     jaws = palm_geoms[far >= tip - FIXED_JAW_REACH_M] if len(palm_geoms) else palm_geoms
     finger_geoms, palm_geoms = np.union1d(finger_geoms, jaws), np.setdiff1d(palm_geoms, jaws)
+    fixed_jaw = None
+    if len(jaws):
+        y = ((_corners(model, data, jaws) - p_grasp) @ R_world_grasp)[:, 1]
+        side = -1.0 if float(y.mean()) < 0.0 else 1.0
+        fixed_jaw = (float(y.max() if side < 0 else y.min()), side)
 
+    data.qpos[indices.gripper_qpos] = robot.gripper.closed
+    apply_couplings(indices, data.qpos)
+    mujoco.mj_kinematics(model, data)
+    closed_fingers = (_corners(model, data, finger_geoms) - data.site_xpos[indices.grasp_site]) @ data.site_xmat[
+        indices.grasp_site].reshape(3, 3)
+    data.qpos[indices.gripper_qpos] = robot.gripper.open
+    apply_couplings(indices, data.qpos)
+    mujoco.mj_kinematics(model, data)
     body_corners = _corners(model, data, body_geoms)
     arm_corners = _corners(model, data, arm_geoms)
     finger_grasp = (_corners(model, data, finger_geoms) - p_grasp) @ R_world_grasp
@@ -157,43 +187,57 @@ def _measure(robot: RobotDescription) -> RobotGeometry:
         fingertip_depth=float(finger_z.max()),
         finger_depth_range=(float(finger_z.min()), float(finger_z.max())),
         finger_corners=finger_grasp,
+        closed_finger_corners=closed_fingers,
         palm_corners=(_corners(model, data, palm_geoms) - p_grasp) @ R_world_grasp if len(palm_geoms) else np.zeros((0, 3)),
         lift_range=lift_range,
         lift_sign=lift_sign,
         reach_min=reach_min,
         reach_yaw=reach_yaw,
+        reach_up=reach_up,
+        fixed_jaw=fixed_jaw,
     )
 
 
 def _shoulder_reach(
     robot: RobotDescription, model: mujoco.MjModel, data: mujoco.MjData, indices: RobotIndices, arm: list[int]
-) -> tuple[FloatArray, float, float, float]:
-    """Shoulder (anchor of the second arm joint), reach, nearest reach (0 but for a telescoping arm) and the
-    direction the arm reaches in. The reach is the
-    anchor-to-anchor length from the shoulder to the wrist; with a slide between them (a telescoping arm), it is
-    the straight distance from the shoulder with the slide retracted to the wrist with it extended (with the joints
-    coupled to it) as far as the whole-body IK moves it, and the arm reaches along the slide. ``data`` is left at the pose it came in."""
+) -> tuple[FloatArray, float, float, float, float | None]:
+    """Shoulder, reach, nearest reach (0 but for a telescoping arm), the direction the arm reaches in and how far
+    it moves the wrist up (None: its reach).
+
+    An arm of revolute joints: the shoulder is the anchor of the second arm joint, the reach the anchor-to-anchor
+    length from there to the wrist. A telescoping arm (a slide between the shoulder and the wrist): the points the
+    wrist can take lie on one line, the slide's, not in a ball about the slide's base. Its "shoulder" is the end of
+    the telescope (the anchor of the first joint after the last slide) with the slides drawn in to their limits,
+    and the reach runs from there along the slide: ``reach_min`` and ``reach`` are how far the end moves with the
+    slides (and the joints coupled to them) as far in and out as the whole-body IK moves them. Base placement's
+    ball about that point, with its facing cost along the slide, then holds what the telescope reaches: a point on
+    the line at the distance the slide moves it, and off the line only what a turn of the base brings onto it.
+    (Measured from the slide's base instead, the ball took wrist targets 8 cm off Stretch 3's line, 4 cm beyond
+    what its base can turn the line onto: the IK then missed the grasp by 5-20 mm with the telescope out.)
+    ``data`` is left at the pose it came in."""
     k0 = len(robot.base_joints)
     slides = [k for k in range(1, len(arm) - 1) if model.jnt_type[arm[k]] == mujoco.mjtJoint.mjJNT_SLIDE]
     if not slides:
         anchors = data.xanchor[arm]
-        return anchors[1].copy(), float(np.sum(np.linalg.norm(np.diff(anchors[1:-1], axis=0), axis=1))), 0.0, 0.0
+        return anchors[1].copy(), float(np.sum(np.linalg.norm(np.diff(anchors[1:-1], axis=0), axis=1))), 0.0, 0.0, None
+    end = arm[slides[-1] + 1]  # the joint the telescope carries
     qpos = data.qpos.copy()
     ends = []
-    for side, limits in ((1.0, robot.q_min), (-1.0, robot.q_max)):
+    for side, limits, inset in ((1.0, robot.q_min, 0.0), (1.0, robot.q_min, 1.0), (-1.0, robot.q_max, 1.0)):
         for k in slides:
             # the travel the whole-body IK uses: its limit margin inside the limits, the leader's share of it
-            margin = IKConfig().limit_margin / robot.stages(robot.arm_joints[k])
+            margin = inset * IKConfig().limit_margin / robot.stages(robot.arm_joints[k])
             data.qpos[indices.qpos[k0 + k]] = limits[k0 + k] + side * margin
         apply_couplings(indices, data.qpos)
         mujoco.mj_kinematics(model, data)
-        ends.append((data.xanchor[arm[1]].copy(), data.xanchor[arm[-2]].copy()))
+        ends.append(data.xanchor[end].copy())
     axis = data.xaxis[arm[slides[-1]]]
     reach_yaw = float(np.arctan2(axis[1], axis[0])) if abs(float(axis[2])) < 0.5 else 0.0
     data.qpos[:] = qpos
     mujoco.mj_kinematics(model, data)
-    shoulder = ends[0][0]
-    return shoulder, float(np.linalg.norm(ends[1][1] - shoulder)), float(np.linalg.norm(ends[0][1] - shoulder)), reach_yaw
+    shoulder = ends[0]
+    reach_up = abs(float(ends[2][2] - shoulder[2]))
+    return shoulder, float(np.linalg.norm(ends[2] - shoulder)), float(np.linalg.norm(ends[1] - shoulder)), reach_yaw, reach_up
 
 
 __all__ = ["Circle", "RobotGeometry", "measure_robot"]

@@ -308,6 +308,31 @@ def _ancestor(model: mujoco.MjModel, body: int, ancestor: int) -> bool:
     return False
 
 
+def hand_bodies(robot: RobotDescription, model: mujoco.MjModel, grasp_site: int) -> IntArray:
+    """(k,) bodies of the robot's hand: the subtree of the grasp site's body, or, when the site hangs on a body of
+    its own beside the fingers (Stretch 3's grasp centre beside its finger slide), of the deepest body that
+    carries both the site and the finger joints. The IK keeps these geoms only millimetres off the scene and lets
+    them touch the handle, as the check does."""
+    def chain(body: int) -> list[int]:
+        out = [body]
+        while out[-1] > 0:
+            out.append(int(model.body_parentid[out[-1]]))
+        return out[::-1]
+
+    fingers = [int(model.jnt_bodyid[model.joint(ROBOT_PREFIX + name).id]) for name in robot.gripper.joints]
+    chains = [chain(int(model.site_bodyid[grasp_site]))] + [chain(b) for b in fingers]
+    hand = 0
+    for level in zip(*chains):
+        if len(set(level)) > 1:
+            break
+        hand = level[0]
+    inside = np.zeros(model.nbody, dtype=bool)
+    inside[hand] = True
+    for b in range(hand + 1, model.nbody):  # MuJoCo numbers children after their parents
+        inside[b] = inside[model.body_parentid[b]]
+    return np.flatnonzero(inside)
+
+
 def reset_to_home(
     robot: RobotDescription, model: mujoco.MjModel, data: mujoco.MjData, gripper_open: bool = True
 ) -> None:
@@ -341,4 +366,4 @@ def gripper_position(indices: RobotIndices, data: mujoco.MjData) -> float:
     return float(data.actuator_length[indices.gripper_actuators[0]])
 
 
-__all__ = ["ROBOT_PREFIX", "apply_couplings", "gripper_position", "RobotIndices", "build_mujoco_model", "build_mujoco_spec", "reset_to_home", "robot_indices"]
+__all__ = ["ROBOT_PREFIX", "apply_couplings", "gripper_position", "hand_bodies", "RobotIndices", "build_mujoco_model", "build_mujoco_spec", "reset_to_home", "robot_indices"]

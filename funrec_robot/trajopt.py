@@ -101,6 +101,9 @@ class PlacementProblem:
     reach_min: float = 0.0
     """Nearest the wrist comes to the shoulder when the arm's shape sets it (a telescoping arm drawn in), m;
     0: ``PlacementConfig.r_min_fraction`` of the reach (an elbow folding)."""
+    rolling: bool = False
+    """The stops share one heading and lie on one line along it: a differential drive rolls straight from one
+    to the next (its wheels cannot move it sideways)."""
 
     def window(self, config: PlacementConfig) -> tuple[float, float, float]:
         """(r_min, r_max, r_mid): the wrist distances from the shoulder allowed and preferred, m."""
@@ -368,6 +371,10 @@ def _assemble(problem: PlacementProblem, x: ca.MX, config: PlacementConfig, near
         cost_b, g_b = f(poses[b])
         terms.cost += cost_b
         terms.add(g_b, *own.bounds())
+    for b in range(1, B if problem.rolling else 0):  # on the first stop's line of travel, at its heading
+        yaw = poses[0][2]
+        terms.add(poses[b][2] - yaw, 0.0, 0.0)
+        terms.add(-ca.sin(yaw) * (poses[b][0] - poses[0][0]) + ca.cos(yaw) * (poses[b][1] - poses[0][1]), 0.0, 0.0)
     for b in range(B - 1):
         terms.cost += config.move_weight * ca.sumsqr(poses[b + 1][:2] - poses[b][:2])
         region = _targets(problem, b + 1, config)[:, :2]
@@ -417,6 +424,11 @@ def place_base(problem: PlacementProblem, config: PlacementConfig = PlacementCon
     B = problem.bases
     x = ca.MX.sym("x", 3 * B)
     x0 = np.concatenate([_best_guess(problem, b, *_stop_functions(problem, b, config, None), config) for b in range(B)])
+    if problem.rolling:  # the other stops' guesses moved onto the first's line of travel
+        heading = np.array([np.cos(x0[2]), np.sin(x0[2])])
+        for b in range(1, B):
+            x0[3 * b : 3 * b + 2] = x0[:2] + heading * float(heading @ (x0[3 * b : 3 * b + 2] - x0[:2]))
+            x0[3 * b + 2] = x0[2]
     full = _assemble(problem, x, config, None)
     full_g = ca.Function("g", [x], [ca.vertcat(*full.g)])
     lbg, ubg = full.bounds()

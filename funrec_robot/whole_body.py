@@ -11,7 +11,7 @@ from funrec.errors import PlanningError
 from funrec.typed import FloatArray
 from funrec_robot.budget import TimeLimitSpent
 from funrec_robot.feasibility import GravityOverload, first_collision, gravity_overload
-from funrec_robot.grasp import FLIP, GraspCandidate, handle_frames, offset_along_approach, release_command
+from funrec_robot.grasp import FLIP, GraspCandidate, handle_frames, offset_along_approach, offset_frame, release_command
 from funrec_robot.ik import WholeBodyIK
 from funrec_robot.plan_config import PlanConfig
 from funrec_robot.retime import point_to_point
@@ -76,10 +76,13 @@ def whole_body_configurations(
     opening = grasp.opening
 
     scored = []
+    # The hand's poses are solved with a differential drive free to roll along its heading (as along the handle
+    # path): a telescoping arm reaches sideways, and its base's roll is what moves the hand along the front.
     for flip in (False, True):
-        path = frames @ FLIP if flip else frames
+        # The hand's targets: the handle frames, off the handle along the closing axis for a fixed jaw.
+        path = (frames @ FLIP if flip else frames) @ offset_frame(grasp.offset)
         T_pre = offset_along_approach(path[0], config.pregrasp_distance)
-        q_pre, e_pos, e_rot = ik.solve(T_pre, q_start, posture[0], start_state, opening, unload=unload)
+        q_pre, e_pos, e_rot = ik.solve(T_pre, q_start, posture[0], start_state, opening, unload=unload, rolling=True)
         score = e_pos + 0.1 * e_rot + 0.01 * float(np.linalg.norm(q_pre - q_start))
         scored.append((score, flip, path, q_pre, e_pos, e_rot))
     scored.sort(key=lambda item: item[0])
@@ -105,11 +108,11 @@ def _from_pregrasp(
 ) -> dict:
     """The rest of :func:`whole_body_configurations` for one way round of the gripper (``flip``) from its
     pre-grasp solution: grasp, approach (with a via pose if needed), handle path, retreat."""
-    depth, tilt = grasp.depth, grasp.tilt
+    depth = grasp.depth
     start_state = float(states[0])
     opening, holding = grasp.opening, grasp.holding
     _require(e_pos, e_rot, config, "pre-grasp pose", start_state, task)
-    q_grasp, e_pos, e_rot = ik.solve(path[0], q_pre, posture[0], start_state, opening, unload=unload)
+    q_grasp, e_pos, e_rot = ik.solve(path[0], q_pre, posture[0], start_state, opening, unload=unload, rolling=True)
     _require(e_pos, e_rot, config, "grasp pose", start_state, task)
 
     # Up to the pre-grasp pose nothing of the scene may be touched, the handle included (a swing through it
@@ -121,7 +124,7 @@ def _from_pregrasp(
     hit = first_collision(model, ik, _ruckig_samples(robot, q_start, q_pre, config), start_state, opening, allowed, floor)
     if hit is not None:
         T_via = offset_along_approach(path[0], config.via_distance)
-        q_via, e_pos, e_rot = ik.solve(T_via, q_start, posture[0], start_state, opening)
+        q_via, e_pos, e_rot = ik.solve(T_via, q_start, posture[0], start_state, opening, rolling=True)
         # The via pose only leads the hand around an obstacle, in free space: it need not be met to the
         # millimetre, nor in orientation (what it must be, collision-free, is checked below).
         _require(e_pos, e_rot, config, "approach via pose", start_state, task, (config.via_position_tolerance, np.pi))
@@ -136,7 +139,7 @@ def _from_pregrasp(
     worst = int(np.argmax(tracked.position_error / config.track_position_tolerance + tracked.orientation_error / config.track_orientation_tolerance))
     _require(tracked.position_error[worst], tracked.orientation_error[worst], config, "handle path", states[1 + worst], task)
     q_path = np.vstack([q_grasp, tracked.q])
-    states, path, q_path = _refine_path(ik, task, states, path, q_path, depth, tilt, flip, holding, config)
+    states, path, q_path = _refine_path(ik, task, states, path, q_path, grasp, flip, holding, config)
     overload = gravity_overload(
         robot, model, ik, np.vstack([q_grasp, q_path]), np.r_[start_state, states], holding, config.gravity_effort_share
     )
@@ -168,7 +171,7 @@ def _from_pregrasp(
     return {
         "grasp": grasp,
         "flip": flip,
-        "path": path,
+        "path": path @ np.linalg.inv(offset_frame(grasp.offset)),  # the handle's frames
         "states": states,
         "configs": {"approach": approach, "path": q_path, "retreat": q_retreat},
         "tracked": tracked,
@@ -183,8 +186,7 @@ def _refine_path(
     states: FloatArray,
     path: FloatArray,
     q_path: FloatArray,
-    depth: float,
-    tilt: float,
+    grasp: GraspCandidate,
     flip: bool,
     fingers: float,
     config: PlanConfig,
@@ -199,9 +201,11 @@ def _refine_path(
     for _ in range(config.refine_passes):
         middle_q = (q_path[:-1] + q_path[1:]) / 2.0
         middle_s = (states[:-1] + states[1:]) / 2.0
-        expected = handle_frames(task, np.concatenate([[states[0]], middle_s]), depth, tilt, config.grasp)[1:]
+        depth = grasp.depth
+        expected = handle_frames(task, np.concatenate([[states[0]], middle_s]), depth, grasp.tilt, config.grasp, grasp.max_roll)[1:]
         if flip:
             expected = expected @ FLIP
+        expected = expected @ offset_frame(grasp.offset)
         off = []
         for k, (q, s, T) in enumerate(zip(middle_q, middle_s, expected)):
             T_now = ik.grasp_pose(q, float(s), fingers)

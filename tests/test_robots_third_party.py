@@ -112,12 +112,18 @@ def test_stretch_plans_its_four_arm_stages_as_one_joint(stretch) -> None:
     assert robot.drive == "differential" and robot.arm_joints[:2] == ("joint_lift", "joint_arm_l0")
     assert robot.couplings["joint_arm_l3"] == ("joint_arm_l0", 1.0)
     assert robot.couplings["joint_gripper_finger_left_open"] == ("joint_gripper_slide", 10.0)
-    # the mast lifts the shoulder 0-1.1 m; the telescope reaches out to the robot's right: its 0.52 m of travel
-    # less the IK's margin at both ends (a quarter of 5 cm per stage), plus the wrist's offsets
+    # the mast lifts the shoulder 0-1.1 m; the telescope reaches out to the robot's right: its "shoulder" is the
+    # telescope's end drawn in, and it reaches along the slide its 0.52 m of travel less the IK's margin at the
+    # far end (a quarter of 5 cm per stage), from the margin at the near end on
     assert geometry.lift_range[1] - geometry.lift_range[0] == pytest.approx(1.1)
     assert geometry.reach_yaw == pytest.approx(-np.pi / 2, abs=1e-3)
-    assert 0.42 < geometry.reach < 0.5 and 0.05 < geometry.reach_min < 0.15
-    assert geometry.reach - geometry.reach_min > 0.3  # straight distances: the wrist sits off the slide's line
+    assert geometry.reach == pytest.approx(0.47, abs=2e-3) and geometry.reach_min == pytest.approx(0.05, abs=2e-3)
+    # the shoulder lies on the line the wrist travels along (the slide's, 2 cm behind the base's turning axis)
+    assert geometry.p_base_shoulder[0] == pytest.approx(-0.021, abs=2e-3)
+    # a horizontal telescope raises nothing: the mast's top plus the wrist-to-grasp length bounds the handles
+    assert geometry.reach_up == pytest.approx(0.0, abs=1e-6)
+    band = reach_band(geometry)
+    assert 1.4 < band.high < 1.6 and band.low == 0.0
 
 
 def test_coupled_stages_follow_their_leader_in_the_model_and_the_ik(stretch) -> None:
@@ -196,3 +202,32 @@ def test_the_grasp_site_is_placed_once_per_robot_model(tiago) -> None:
     site = sim_model.robot_indices(tiago, fresh).grasp_site
     np.testing.assert_array_equal(again.site_pos[site], fresh.site_pos[site])
     np.testing.assert_array_equal(again.site_quat[site], fresh.site_quat[site])
+
+
+def test_spot_takes_a_bar_beside_its_fixed_jaw_and_refuses_one_wider_than_its_jaws_open() -> None:
+    import dataclasses
+
+    from funrec_robot.grasp import GraspConfig, graspable_tilts, jaw_offset
+
+    robot = load_robot(ROBOTS / "spot_arm.yaml")
+    geometry = measure_robot(robot)
+    face, side = geometry.fixed_jaw
+    assert side == -1.0 and abs(face) < 0.002  # the grasp point lies on the fixed jaw's inner face
+    task = ArticulationTask(part="part_0", joint_type="revolute", axis_world=[0, 0, 1], pivot_world=[0.0, 1.0, 0.0],
+                            state_range=(0.0, 1.5), state_current=0.0, p_world_contact=[0.4, 1.0, 0.8],
+                            approach_world=[0, 1, 0], handle_axis_world=[0, 0, 1], surface_offset=0.03)
+    bar = dataclasses.replace(task, handle_width=0.02)
+    # the bar's centre 10 mm (half its thickness) and 3 mm of clearance above the jaw's face
+    assert jaw_offset(bar, geometry, GraspConfig()) == pytest.approx(face + 0.013, abs=1e-6)
+    wide = dataclasses.replace(task, handle_width=0.09, handle_depth=0.09)  # the jaws open 75 mm
+    assert graspable_tilts(robot, wide, geometry, GraspConfig()) == []
+
+
+def test_stretchs_fingers_are_its_hand(stretch) -> None:
+    from funrec_robot.sim_model import build_mujoco_model, hand_bodies, robot_indices
+
+    robot, _ = stretch
+    model = build_mujoco_model(robot)
+    names = {model.body(b).name for b in hand_bodies(robot, model, robot_indices(robot, model).grasp_site)}
+    # the grasp site hangs on a body of its own beside the finger slide: the hand is the body carrying both
+    assert {"robot/link_SG3_gripper_body", "robot/rubber_tip_left", "robot/link_grasp_center"} <= names
