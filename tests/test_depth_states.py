@@ -271,3 +271,16 @@ def test_front_axes_follow_the_edges_of_an_l_shaped_frame() -> None:
         # each in-plane axis lies along one of the two edges, to a degree (the bars' 4 cm width and sampling)
         assert np.degrees(np.arccos(np.abs(edges @ axis).max())) < 1.0
     assert abs(normal[2]) > 0.999
+
+
+def test_a_slide_along_the_front_is_not_turned_and_one_across_it_is() -> None:
+    """A panel slides in its own plane along the edges it uncovers, and depth cannot turn a plain
+    panel's slide better than those edges; a drawer's slide across its front is refined."""
+    from funrec.parts.depth_proposal import DepthProposalConfig, _slide_neighbours
+
+    normal = np.array([0.0, 0.0, -1.0])
+    neighbours = _slide_neighbours(normal, DepthProposalConfig())
+    assert neighbours(np.array([1.0, 0.0, 0.0]), None, 0) == []
+    across = neighbours(normal, None, 0)
+    assert len(across) == 4
+    assert all(np.isclose(np.degrees(np.arccos(np.clip(a @ normal, -1, 1))), 8.0) for a, _ in across)

@@ -197,7 +197,7 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
         elif joint_type not in best_of or cost < best_of[joint_type][0]:
             best_of[joint_type] = (cost, joint_type, axis, pivot)
     # The best of each joint type is refined before they are compared: the grid of hypotheses is
-    # coarse (rectangle axes, 3 cm hinge offsets) and a refined hinge can beat a slide that the
+    # coarse (principal axes, 3 cm hinge offsets) and a refined hinge can beat a slide that the
     # grid preferred (measured on plain_rev_oven_00: a drop-down door's slide 0.500 against its
     # unrefined hinge 0.519).
     if "revolute" in best_of:
@@ -205,12 +205,11 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
         cost, (axis, pivot) = _descend(cost, (axis, pivot), len(config.hinge_refine_steps_deg),
                                        _hinge_neighbours(normal, config), lambda a, p: score("revolute", a, p))
         best_of["revolute"] = (cost, "revolute", axis, pivot)
-    # Slides are not refined: a drawer slides along its front's normal and a panel along the edges of the
-    # surface it uncovers (_front_plane's axes), and a plain front looks alike wherever it stands along
-    # them but at its edges, so depth turns a slide no better than the plane fit. Proposal alone, each
-    # twin's poses at 5e013bc, refined against not: plain_pri_drawer_01 8.1 / 0.08 deg, dark_pri_drawer_00
-    # 5.1 / 0.21, pri_drawer_00 7.6 / 0.79, geo_angled_pri_drawer_00 0.9 / 0.35, plain_pri_drawer_00 1.4 /
-    # 0.1; plain_pri_wardrobe_00 tilted out of its plane 12.9, turned within it 16.3, unturned 0.3.
+    if "prismatic" in best_of:
+        cost, _, axis, _ = best_of["prismatic"]
+        cost, (axis, _) = _descend(cost, (axis, None), len(config.hinge_refine_steps_deg), _slide_neighbours(normal, config),
+                                   lambda a, p: score("prismatic", a, None))
+        best_of["prismatic"] = (cost, "prismatic", axis, None)
     best = min(best_of.values(), key=lambda b: b[0]) if best_of else None
     if best is None or not best[0] < config.min_gain * static:
         logger.info("depth proposal: best cost %s vs still %.3f: no joint explains the surface that left",
@@ -229,7 +228,7 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
         # a drawer's tracks often sit on what it carries, or on the walls beside a plain front: the tracks'
         # joint (many tracks pin its axis) on depth's surface (plain drawers: ADD 42 -> 97, mIoU 44 -> 88).
         # A panel sliding along its front keeps depth's slide, the edges of the surface it uncovered
-        # (see the slides above): its few tracks sit on the handle and the panel's edge and carry the camera's
+        # (_slide_neighbours): its few tracks sit on the handle and the panel's edge and carry the camera's
         # drift along the slide (proposal alone, against the tracks' slide in the bench at dc34b2a:
         # plain_pri_wardrobe_00 0.3 against 13.8 deg, person_elbow_pri_wardrobe_00 0.3 against 2.0,
         # mw_window_00 0.05 against 0.3; a drawer's slide across its front is the other way round,
@@ -460,6 +459,28 @@ def _hinge_neighbours(normal: FloatArray, config: DepthProposalConfig):
         across = np.cross(normal, axis)
         return ([(_turned(axis, normal, sign * step_deg), pivot) for sign in (1, -1)]
                 + [(axis, pivot + sign * step_m * across) for sign in (1, -1)])
+
+    return neighbours
+
+
+def _slide_neighbours(normal: FloatArray, config: DepthProposalConfig):
+    """The slide direction turned by the k-th of ``config.hinge_refine_steps_deg``: a slide across the
+    front (a drawer) tilted about two directions perpendicular to it; a slide along the front (a
+    sliding door or panel) not at all. A panel slides in its own plane, along the edges of the
+    surface it uncovers (:func:`_front_plane`'s axes), and a plain panel looks the same wherever it
+    stands in that plane but at its edges: depth cannot turn its slide better than those edges.
+    On plain_pri_wardrobe_00 (proposal alone, its twin's poses and hand masks) tilting it out of the
+    plane ended 12.9 deg off (its points carried onto the fixed panel in front, and into the
+    carcass, where depth cannot refute them), turning it within the plane 16.3 deg off at cost
+    0.172, and the rectangle's edge, unturned, 0.3 deg off at cost 0.177."""
+
+    def neighbours(axis: FloatArray, pivot: FloatArray | None, k: int) -> list[tuple[FloatArray, FloatArray | None]]:
+        step = config.hinge_refine_steps_deg[k]
+        if abs(axis @ normal) < np.cos(np.pi / 4):
+            return []
+        first = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
+        first /= np.linalg.norm(first)
+        return [(_turned(axis, about, sign * step), None) for about in (first, np.cross(axis, first)) for sign in (1, -1)]
 
     return neighbours
 
