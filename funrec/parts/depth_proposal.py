@@ -170,10 +170,10 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
     hypothesis_points = points[np.linspace(0, len(points) - 1, min(len(points), config.hypothesis_points)).astype(int)]
     # what arrived in front of frame 0's view, in every scored frame: the moved part must be it
     F = len(capture)
+    arrived = _arrived(views, np.arange(F))  # once: the scored frames' for the hypotheses, all for the chosen joint
     scored = np.arange(0, F, config.score_stride)
-    arrived = _arrived(views, scored)
-    coarse_arrival = Arrival(np.arange(len(scored)), arrived, views.depth0_m, capture.intrinsics.K,
-                             invert_transform(trajectory.T_world_camera[0]))
+    coarse_arrival = Arrival(np.arange(len(scored)), arrived[:: config.score_stride], views.depth0_m,
+                             capture.intrinsics.K, invert_transform(trajectory.T_world_camera[0]))
     static = depth_fit(coarse, coarse_poses, "prismatic", normal, None, hypothesis_points, _held_still(search),
                        coarse_arrival)[1]
     best_of: dict[str, tuple[float, str, FloatArray, FloatArray | None]] = {}
@@ -235,8 +235,7 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
         # pri_drawer_00 7.6 against 1.5)
         if abs(axis @ normal) >= np.cos(np.pi / 4):
             cost, (joint_type, axis, pivot) = rival_cost, rival
-    every = np.arange(F)
-    arrival = replace(coarse_arrival, frames=every, p_world=_arrived(views, every))
+    arrival = replace(coarse_arrival, frames=np.arange(F), p_world=arrived)
     states = depth_states(capture, trajectory, joint_type, axis, pivot, points, np.zeros(1, np.int64), np.zeros(1),
                           np.ones(1, bool), config.depth, arrival=arrival)
     states = states - states[0]

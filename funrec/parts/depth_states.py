@@ -180,13 +180,6 @@ def depth_fit(
                    np.zeros(0, bool), config, None, arrival)
 
 
-def point_cost(depth_m: FloatArray, K: FloatArray, T_camera_world: FloatArray, p_world: FloatArray,
-               config: DepthStateConfig = DepthStateConfig()) -> float:  # noqa: B008 (frozen)
-    """Mean cost of points ``p_world`` (M, 3) against one depth image (H, W), as the search scores
-    a state: 0 on the observed surface, 1 seen through, ``occluded_cost`` hidden or outside."""
-    return float(_frame_cost(depth_m, K, T_camera_world, p_world[None], None, config)[0][0])
-
-
 def _search(capture: Capture, trajectory: CameraTrajectory, joint_type: str, axis_world: FloatArray,
             pivot_world: FloatArray | None, p_world: FloatArray, tracked_frames: IntArray, tracked_states: FloatArray,
             trusted: BoolArray, config: DepthStateConfig, normal_world: FloatArray | None,
@@ -320,4 +313,4 @@ def _min_cost_chain(cost: FloatArray, max_steps: int, change_cost: float) -> Int
     return path
 
 
-__all__ = ["Arrival", "DepthStateConfig", "depth_fit", "depth_states", "oriented_normals", "point_cost"]
+__all__ = ["Arrival", "DepthStateConfig", "depth_fit", "depth_states", "oriented_normals"]
