@@ -223,6 +223,31 @@ def test_unreachable_part_is_refused_at_once_in_one_sentence(robot, scenes) -> N
     assert time.process_time() - started < 1.0  # refused before any optimisation
 
 
+@pytest.mark.parametrize(
+    ("shoulder_xy", "nearest_m"),
+    [
+        # a disc of 0.2 m round the shoulder, kept 5 cm off a counter at x >= 0: the shoulder stands 0.25 m before it
+        ((0.0, 0.0), 0.25),
+        # the shoulder 0.1 m ahead of the disc's centre: facing the counter, it stands 0.15 m before it
+        ((0.1, 0.0), 0.15),
+    ],
+)
+def test_a_handle_over_a_counter_is_out_of_reach_only_from_every_clear_base_pose(shoulder_xy, nearest_m) -> None:
+    from funrec_robot.reach import floor_reach_gap
+    from funrec_robot.robot_geometry import Circle
+    from funrec_robot.scene import polygon_from_points
+
+    counter = (polygon_from_points("counter", [[0.0, -1.0], [1.0, -1.0], [1.0, 1.0], [0.0, 1.0]]),)
+    disc = (Circle(np.zeros(2), 0.2, (0.0, 0.8)),)
+    wrist = np.array([0.3, 0.0, 1.5])  # 0.3 m over the counter, 0.5 m above the shoulder
+    distance = float(np.hypot(0.3 + nearest_m, 0.5))  # 0.743 m and 0.673 m
+    gap = floor_reach_gap(wrist, 1.0, np.array(shoulder_xy), disc, counter, distance - 0.03, 0.05)
+    # a lower bound: at most the true 3 cm, and less by no more than the grid's and the heading step's slack (2 cm)
+    assert gap is not None and 0.01 < gap <= 0.03 + 1e-9
+    assert floor_reach_gap(wrist, 1.0, np.array(shoulder_xy), disc, counter, distance + 0.005, 0.05) is None
+    assert floor_reach_gap(wrist, 1.0, np.array(shoulder_xy), disc, (), distance - 0.03, 0.05) is None  # no counter
+
+
 @settings(deadline=None, max_examples=30)
 @given(seed=st.integers(0, 2**31 - 1), roll=st.floats(-1.2, 1.2), axis=st.integers(0, 2))
 def test_roll_to_hold_undoes_a_roll_about_the_axis(seed: int, roll: float, axis: int) -> None:
