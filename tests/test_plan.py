@@ -277,6 +277,22 @@ def test_falls_to_follows_gravity_on_a_drop_down_door():
     assert not falls_to(held, 0, 0.8, 1.45, 0.01)
 
 
+def test_the_approach_tested_for_collisions_is_the_one_the_plan_moves_along(robot, revolute) -> None:
+    """Ruckig synchronises the joints in time, not along one line: the collision test must sample the move at
+    the limits the plan is timed with (at the robot's full limits TIAGo's arm missed a knob it then swept
+    through). The plan's first approach move, to the pre-grasp pose where it dwells, is the tested one to 1e-9."""
+    from funrec_robot.whole_body import _approach_samples
+
+    gt, model, task, plan = revolute
+    approach = plan.segment("approach")
+    q = plan.q[approach.start : approach.end + 1]
+    still = np.flatnonzero(np.all(np.abs(plan.qd[approach.start : approach.end + 1]) < 1e-12, axis=1))
+    dwell = still[still > 0][0]  # the first sample at rest after the start: the pre-grasp (or via) pose
+    samples = _approach_samples(robot, model, q[0], q[dwell], PlanConfig())
+    assert len(samples) == dwell + 1
+    assert np.abs(samples - q[: dwell + 1]).max() < 1e-9
+
+
 def test_approach_touches_nothing_not_even_the_handle(robot, revolute) -> None:
     """Until the grasp closes, the open gripper touches no scene geom, the handle included (a swing through it
     would push the door before the grasp): kinematic replay of the approach, every sample."""
