@@ -32,7 +32,7 @@ from funrec_robot.grasp import grasp_candidates, graspable_tilts, release_comman
 from funrec_robot.grasp_frames import T_world_grasp_canonical, grasp_free_axis
 from funrec_robot.plan_config import PlanConfig
 from funrec_robot.plan_file import Plan, Segment, sha256_file
-from funrec_robot.reach import FLOOR_CHECK_BELOW_M, floor_reach_gap, handle_height, lifted, reach_refusal
+from funrec_robot.reach import FLOOR_CHECK_ROOM, floor_reach_gap, handle_height, lifted, reach_refusal
 from funrec_robot.retime import Trajectory, point_to_point, retime_path
 from funrec_robot.robot import RobotDescription, load_robot
 from funrec_robot.robot_geometry import RobotGeometry, measure_robot
@@ -314,7 +314,7 @@ def _floor_refusal(
         wrist = candidate.frames[0, :3, 3] - candidate.frames[0, :3, 2] * geometry.wrist_to_grasp
         # The shoulder as near the wrist's height as the planned lift puts it.
         shoulder_z = float(np.clip(wrist[2], geometry.p_base_shoulder[2] + lift_down, geometry.p_base_shoulder[2] + lift_up))
-        if r_max**2 - (wrist[2] - shoulder_z) ** 2 >= FLOOR_CHECK_BELOW_M**2:
+        if r_max**2 - (wrist[2] - shoulder_z) ** 2 >= (FLOOR_CHECK_ROOM * r_max) ** 2:
             return None
         targets.append((wrist, shoulder_z))
     if not targets:

@@ -82,9 +82,10 @@ FLOOR_YAWS = 144
 """Base headings it tries at each (every 2.5 degrees)."""
 FLOOR_BEYOND_M = 0.1
 """How far beyond the horizontal room it looks for the nearest clear base pose, m."""
-FLOOR_CHECK_BELOW_M = 0.45
-"""It runs only when some grasp leaves the wrist less than this horizontal room from the shoulder (a handle high
-above or far below it): otherwise the furniture cannot keep every base pose out of reach, m."""
+FLOOR_CHECK_ROOM = 0.6
+"""It runs only when every grasp's wrist lies so far above or below the shoulder that it leaves less than this
+fraction of the reach horizontally (a handle high over a counter): elsewhere the furniture rarely keeps every base
+pose out of reach, and the check's 0.3-0.6 s went into every plan of a short arm (Stretch's 0.45 m)."""
 
 
 def floor_reach_gap(
@@ -134,10 +135,15 @@ def floor_reach_gap(
     axis = np.arange(-m, m + 1) * FLOOR_GRID_M
     cells = wrist[:2] + np.stack(np.meshgrid(axis, axis, indexing="ij"), axis=-1).reshape(-1, 2)
     field = np.full(len(cells), np.inf)
+    # A footprint farther from the wrist than every disc centre tried plus its radius and clearance binds none.
+    reach = extent + float(radii.max()) + clearance
     for polygon in footprints:
-        field = np.minimum(field, polygon.lower_distance(cells))
+        if float(polygon.lower_distance(wrist[:2])[0]) <= reach:
+            field = np.minimum(field, polygon.lower_distance(cells))
     field = field.reshape(len(axis), len(axis))
     clear = np.zeros(len(shoulders), dtype=bool)
+    # A clear shoulder this near answers None whatever the other headings find: most handles stop at the first.
+    within = np.linalg.norm(grid, axis=1) <= np.sqrt(r_max**2 - dz**2) + FLOOR_GRID_M / np.sqrt(2.0)
     for yaw in np.arange(FLOOR_YAWS) * step:
         c, s = np.cos(yaw), np.sin(yaw)
         ok = np.ones(len(shoulders), dtype=bool)
@@ -146,6 +152,8 @@ def floor_reach_gap(
             i = np.clip(np.rint(centre / FLOOR_GRID_M).astype(int) + m, 0, 2 * m)
             ok &= field[i[:, 0], i[:, 1]] >= radii[k] + clearance - slack[k]
         clear |= ok
+        if np.any(clear & within):
+            return None
     # A clear pose's shoulder lies within half a grid diagonal of a grid point counted clear: none within the
     # room puts every clear shoulder beyond it.
     nearest = float(np.min(np.linalg.norm(grid[clear], axis=1), initial=room)) - FLOOR_GRID_M / np.sqrt(2.0)
