@@ -162,7 +162,7 @@ def _twin_rows(case, gt, robot, target, plan_config, check_config, plans_dir, tw
 
     true_types = {p.part.name: p.part.joint_type for p in gt.parts}
     done: set[str] = set()
-    errors: list[str] = []
+    errors: list[tuple[str, bool]] = []  # (why, refused) per twin part that was not planned
     clock, cpu = time.perf_counter(), time.process_time()
     try:
         twin_parts = [p.name for p in read_articulation(twin).parts]
@@ -180,7 +180,7 @@ def _twin_rows(case, gt, robot, target, plan_config, check_config, plans_dir, tw
             T_scene_plan = T_scene_plan_from_gt(plan, gt.root)
             joint = nearest_gt_joint(gt.root, T_scene_plan, task.p_world_contact)
         except FunrecError as exc:
-            errors.append(f"twin {name}: {exc}")
+            errors.append((f"twin {name}: {exc}", isinstance(exc, Refusal)))
             continue  # judged below as its true part's failure, if no other twin part succeeds
         if joint in done:
             continue
@@ -192,7 +192,14 @@ def _twin_rows(case, gt, robot, target, plan_config, check_config, plans_dir, tw
         yield _checked(case, joint, plan, report, plan_time, plan_cpu)
     for name, joint_type in true_types.items():
         if name not in done:
-            yield _not_planned(case, name, joint_type, "; ".join(errors) or why, clock, cpu)
+            yield _not_planned(case, name, joint_type, "; ".join(e for e, _ in errors) or why, clock, cpu, _all_refused(errors))
+
+
+def _all_refused(errors: Sequence[tuple[str, bool]]) -> bool:
+    """A true part none of whose twin parts was planned counts as refused when the robot refused every one of them
+    (out of its reach band, a handle its gripper cannot take, measured on the twin), as on ground truth; any other
+    error (a twin unfit to plan in, a failed optimisation) makes it a failure."""
+    return bool(errors) and all(refused for _, refused in errors)
 
 
 def summarize(rows: Sequence[BenchRow]) -> dict[str, Any]:

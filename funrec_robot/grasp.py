@@ -128,11 +128,12 @@ def opening_commands(
 
 
 def release_command(robot: RobotDescription, holding: float, config: GraspConfig) -> float:
-    """Gripper command on letting go: ``release_gap`` looser than holding, no wider. A grasp rolled against the
+    """Gripper command on letting go: ``release_gap`` (the robot's, else the config's) looser than holding, no wider. A grasp rolled against the
     part's front has a finger close to it; opening wide would push the part away."""
     gripper = robot.gripper
     low, high = sorted((gripper.closed, gripper.open))
-    looser = gripper.command(config.grip_squeeze + config.release_gap) - gripper.closed
+    gap = config.release_gap if gripper.release_gap is None else gripper.release_gap
+    looser = gripper.command(config.grip_squeeze + gap) - gripper.closed
     return float(np.clip(holding + looser, low, high))
 
 

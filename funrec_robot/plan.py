@@ -32,7 +32,7 @@ from funrec_robot.grasp import grasp_candidates, graspable_tilts, release_comman
 from funrec_robot.grasp_frames import T_world_grasp_canonical, grasp_free_axis
 from funrec_robot.plan_config import PlanConfig
 from funrec_robot.plan_file import Plan, Segment, sha256_file
-from funrec_robot.reach import handle_height, lifted, reach_refusal
+from funrec_robot.reach import FLOOR_CHECK_ROOM, floor_reach_gap, handle_height, lifted, reach_refusal
 from funrec_robot.retime import Trajectory, point_to_point, retime_path
 from funrec_robot.robot import RobotDescription, load_robot
 from funrec_robot.robot_geometry import RobotGeometry, measure_robot
@@ -297,6 +297,44 @@ def _handle_path(
     return _HandlePath(states, start_state, target_state, final_state, demo, capped, reach_capped, config, candidates)
 
 
+def _floor_refusal(
+    robot: RobotDescription, model: mujoco.MjModel, joint: int, task: ArticulationTask, geometry: RobotGeometry,
+    handle: _HandlePath,
+) -> str | None:
+    """Why no base pose clear of the furniture brings the shoulder within reach of the handle's first wrist target
+    at any grasp tilt (``reach.floor_reach_gap``), or None: a handle high over a counter the base cannot stand
+    under. Checked only where every grasp leaves the wrist little horizontal room (a handle high or low)."""
+    config = handle.config
+    r_max = geometry.reach * config.placement.r_max_fraction
+    # The IK keeps a lift ``limit_margin`` inside its range, as every joint.
+    margin = config.ik.limit_margin
+    lift_down, lift_up = (geometry.lift_range[0] + margin, geometry.lift_range[1] - margin) if geometry.lift_range else (0.0, 0.0)
+    targets = []
+    for candidate in handle.candidates:
+        wrist = candidate.frames[0, :3, 3] - candidate.frames[0, :3, 2] * geometry.wrist_to_grasp
+        # The shoulder as near the wrist's height as the planned lift puts it.
+        shoulder_z = float(np.clip(wrist[2], geometry.p_base_shoulder[2] + lift_down, geometry.p_base_shoulder[2] + lift_up))
+        if r_max**2 - (wrist[2] - shoulder_z) ** 2 >= (FLOOR_CHECK_ROOM * r_max) ** 2:
+            return None
+        targets.append((wrist, shoulder_z))
+    if not targets:
+        return None
+    problem = _placement_problem(robot, model, joint, geometry, handle.candidates[0].frames[:1], handle.states[:1], 1, config)
+    gaps = []
+    for wrist, shoulder_z in targets:
+        gap = floor_reach_gap(wrist, shoulder_z, geometry.p_base_shoulder[:2], geometry.base_circles,
+                              problem.static + problem.start_part, r_max, config.placement.clearance)
+        if gap is None:
+            return None
+        gaps.append(gap)
+    lift = f" (its {robot.arm_joints[0]} {100 * margin:.0f} cm inside its limit)" if geometry.lift_range else ""
+    return (
+        f"part '{task.part}': handle at {handle_height(task):.2f} m over furniture the base cannot stand under: "
+        f"wherever the base stands {100 * config.placement.clearance:.0f} cm clear of it, the wrist stays at least "
+        f"{r_max + min(gaps):.3f} m from the shoulder{lift} for a reach of {r_max:.3f} m, at every grasp tilt"
+    )
+
+
 def _search(
     robot: RobotDescription,
     model: mujoco.MjModel,
@@ -541,6 +579,9 @@ def _plan_interaction(robot: RobotDescription, scene_xml: str | Path, task: Arti
         # a shoulder that pans turns with its base cheaply (TIAGo follows a door round so).
         config = replace(config, ik=replace(config.ik, posture_cost_rolling_yaw=config.ik.posture_cost_base))
     handle = _handle_path(robot, model, joint, task, geometry, target, start, config)
+    refusal = _floor_refusal(robot, model, joint, task, geometry, handle)
+    if refusal is not None:
+        raise Refusal(refusal)
     lap("path")
     solution = _search(robot, model, joint, task, geometry, handle, cpu_started)
     lap("placement_ik")

@@ -17,7 +17,8 @@ import numpy as np
 
 from funrec.typed import FloatArray
 from funrec_robot.robot import RobotDescription
-from funrec_robot.robot_geometry import RobotGeometry
+from funrec_robot.robot_geometry import Circle, RobotGeometry
+from funrec_robot.scene import Polygon
 from funrec_robot.task import ArticulationTask
 
 LIFT_ABOVE_HANDLE_M = 0.1
@@ -75,6 +76,91 @@ def reach_refusal(robot: RobotDescription, geometry: RobotGeometry, task: Articu
     return band.sentence(robot, height)
 
 
+FLOOR_GRID_M = 0.01
+"""Spacing of the shoulder positions :func:`floor_reach_gap` tries, m."""
+FLOOR_YAWS = 144
+"""Base headings it tries at each (every 2.5 degrees)."""
+FLOOR_BEYOND_M = 0.1
+"""How far beyond the horizontal room it looks for the nearest clear base pose, m."""
+FLOOR_CHECK_ROOM = 0.6
+"""It runs only when every grasp's wrist lies so far above or below the shoulder that it leaves less than this
+fraction of the reach horizontally (a handle high over a counter): elsewhere the furniture rarely keeps every base
+pose out of reach, and the check's 0.3-0.6 s went into every plan of a short arm (Stretch's 0.45 m)."""
+
+
+def floor_reach_gap(
+    wrist: FloatArray,
+    shoulder_z: float,
+    p_base_shoulder_xy: FloatArray,
+    circles: Sequence[Circle],
+    footprints: Sequence[Polygon],
+    r_max: float,
+    clearance: float,
+) -> float | None:
+    """How far beyond ``r_max`` the wrist target stays from the shoulder wherever the base stands with its discs
+    ``clearance`` clear of the footprints (the lower-bound distance base placement keeps them off by), m; None
+    when some base pose may bring it within ``r_max``.
+
+    Shoulder positions on a grid of ``FLOOR_GRID_M`` within the horizontal room ``r_max`` leaves above or below
+    the shoulder, and ``FLOOR_YAWS`` headings about each: a pose counts as clear when every disc's centre lies
+    ``clearance`` plus its radius from every footprint less what the grid's spacing and the heading's step can
+    move it, so a clear pose between grid points is never missed (the answer is a lower bound).
+
+    Args:
+        wrist: (3,) wrist target, world, m.
+        shoulder_z: height of the shoulder (the highest or lowest a lift puts it, towards the wrist), m.
+        p_base_shoulder_xy: (2,) shoulder in the base frame, m.
+        circles: discs covering the robot's base (base frame).
+        footprints: floor footprints of the furniture.
+        r_max: farthest the wrist may be from the shoulder, m.
+        clearance: gap kept between a disc and a footprint, m.
+    """
+    dz = float(wrist[2] - shoulder_z)
+    if r_max**2 - dz**2 < 0.0 or not circles:
+        return None if r_max**2 >= dz**2 else float(abs(dz) - r_max)
+    # The horizontal room r_max leaves, and FLOOR_BEYOND_M more to say how far beyond it the nearest clear pose is.
+    room = float(np.sqrt(r_max**2 - dz**2)) + FLOOR_BEYOND_M
+    n = int(np.ceil(room / FLOOR_GRID_M))
+    u = np.arange(-n, n + 1) * FLOOR_GRID_M
+    grid = np.stack(np.meshgrid(u, u, indexing="ij"), axis=-1).reshape(-1, 2)
+    grid = grid[np.linalg.norm(grid, axis=1) <= room]
+    shoulders = wrist[:2] + grid  # (S, 2)
+    offsets = np.array([c.centre_base for c in circles]) - np.asarray(p_base_shoulder_xy)  # (C, 2) from the shoulder
+    radii = np.array([c.radius for c in circles])
+    step = 2.0 * np.pi / FLOOR_YAWS
+    slack = 2.0 * FLOOR_GRID_M / np.sqrt(2.0) + np.linalg.norm(offsets, axis=1) * step / 2.0  # (C,)
+    # Lower-bound distances to the footprints on a grid covering every disc centre tried (nearest grid point).
+    extent = room + float(np.max(np.linalg.norm(offsets, axis=1))) + FLOOR_GRID_M
+    m = int(np.ceil(extent / FLOOR_GRID_M))
+    axis = np.arange(-m, m + 1) * FLOOR_GRID_M
+    cells = wrist[:2] + np.stack(np.meshgrid(axis, axis, indexing="ij"), axis=-1).reshape(-1, 2)
+    field = np.full(len(cells), np.inf)
+    # A footprint farther from the wrist than every disc centre tried plus its radius and clearance binds none.
+    reach = extent + float(radii.max()) + clearance
+    for polygon in footprints:
+        if float(polygon.lower_distance(wrist[:2])[0]) <= reach:
+            field = np.minimum(field, polygon.lower_distance(cells))
+    field = field.reshape(len(axis), len(axis))
+    clear = np.zeros(len(shoulders), dtype=bool)
+    # A clear shoulder this near answers None whatever the other headings find: most handles stop at the first.
+    within = np.linalg.norm(grid, axis=1) <= np.sqrt(r_max**2 - dz**2) + FLOOR_GRID_M / np.sqrt(2.0)
+    for yaw in np.arange(FLOOR_YAWS) * step:
+        c, s = np.cos(yaw), np.sin(yaw)
+        ok = np.ones(len(shoulders), dtype=bool)
+        for k, (ox, oy) in enumerate(offsets):
+            centre = grid + np.array([c * ox - s * oy, s * ox + c * oy])
+            i = np.clip(np.rint(centre / FLOOR_GRID_M).astype(int) + m, 0, 2 * m)
+            ok &= field[i[:, 0], i[:, 1]] >= radii[k] + clearance - slack[k]
+        clear |= ok
+        if np.any(clear & within):
+            return None
+    # A clear pose's shoulder lies within half a grid diagonal of a grid point counted clear: none within the
+    # room puts every clear shoulder beyond it.
+    nearest = float(np.min(np.linalg.norm(grid[clear], axis=1), initial=room)) - FLOOR_GRID_M / np.sqrt(2.0)
+    distance = float(np.hypot(max(nearest, 0.0), dz))
+    return distance - r_max if distance > r_max else None
+
+
 def lifted(robot: RobotDescription, geometry: RobotGeometry, height: float, limit_margin: float) -> RobotDescription:
     """The robot with its lift's home position putting the shoulder ``LIFT_ABOVE_HANDLE_M`` above a handle at
     ``height``, within the lift's range less ``limit_margin`` (the IK's) and ``LIFT_MARGIN_M``; the robot
@@ -123,4 +209,4 @@ def reach_table(scene: str | Path, robot_paths: Sequence[str | Path]) -> tuple[t
     return tuple(r.name for r in robots), tuple(rows)
 
 
-__all__ = ["LIFT_ABOVE_HANDLE_M", "ReachBand", "ReachRow", "handle_height", "lifted", "reach_band", "reach_refusal", "reach_table"]
+__all__ = ["LIFT_ABOVE_HANDLE_M", "ReachBand", "floor_reach_gap", "ReachRow", "handle_height", "lifted", "reach_band", "reach_refusal", "reach_table"]

@@ -89,6 +89,9 @@ class GripperDescription:
     """Effort limit of the finger joints from the robot file (``limits.effort``), N or N m: it also caps the
     model's gripper actuators in simulation (a model's unlimited jaw servo would squeeze a handle with
     hundreds of newtons). None: the model's own limits."""
+    release_gap: float | None = None
+    """On letting go each finger opens this far clear of the handle, m (``gripper.release_gap``); None: the
+    planner's ``GraspConfig.release_gap``. An arm that tracks its retreat loosely wants more room."""
 
     def command(self, half_width: float) -> float:
         """The command that leaves ``half_width`` between the grasp centre and each jaw (linear between closed
@@ -360,7 +363,8 @@ def _gripper(facts: ModelFacts) -> GripperDescription:
         facts.actuator_ctrlrange(f"gripper.actuator[{k + 1}]", name)
     forces = [file.effort_limits[n] for n in file.gripper_joints if n in file.effort_limits]
     return GripperDescription(file.gripper_joints, file.gripper_actuator, file.gripper_open, file.gripper_closed,
-                              file.gripper_extra_actuators, file.gripper_open_width, min(forces) if forces else None)
+                              file.gripper_extra_actuators, file.gripper_open_width, min(forces) if forces else None,
+                              file.gripper_release_gap)
 
 
 def _servos(facts: ModelFacts) -> dict[str, ServoGains]:

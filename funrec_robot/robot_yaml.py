@@ -119,6 +119,8 @@ class RobotFile:
     """Further actuators that get the same command as ``gripper_actuator`` (one per finger)."""
     gripper_open_width: float | None = None
     """Gap between the jaws at the open command, m (None: twice the command span, for finger slides)."""
+    gripper_release_gap: float | None = None
+    """How far each finger opens clear of the handle on letting go, m (None: the planner's default)."""
     masses: dict[str, float] = field(default_factory=dict)
     """Body -> mass replacing the model's, kg (its inertia scaled alike), for a model file whose masses are wrong."""
     coupled_joints: dict[str, tuple[str, float]] = field(default_factory=dict)
@@ -250,7 +252,7 @@ def read_robot_yaml(path: str | Path) -> RobotFile:
         raise r.fail("base", f"planar: true adds the base joints {format_names(PLANAR_JOINTS.values())}; do not name x, y or yaw as well")
     if planar:
         motions = dict(PLANAR_JOINTS)
-    gripper = r.mapping(top["gripper"], "gripper", ("joints", "actuator", "open", "closed", "open_width"))
+    gripper = r.mapping(top["gripper"], "gripper", ("joints", "actuator", "open", "closed", "open_width", "release_gap"))
     for key in ("joints", "open", "closed"):
         if key not in gripper:
             raise r.fail("gripper", f"missing key '{key}'")
@@ -316,6 +318,7 @@ def read_robot_yaml(path: str | Path) -> RobotFile:
         gripper_extra_actuators=actuators[1:],
         masses=r.number_map(simulation.get("masses"), "simulation.masses", positive=True),
         gripper_open_width=r.number(gripper["open_width"], "gripper.open_width", positive=True) if "open_width" in gripper else None,
+        gripper_release_gap=r.number(gripper["release_gap"], "gripper.release_gap", positive=True) if "release_gap" in gripper else None,
         coupled_joints=_couplings(r, top.get("coupled_joints")),
         drop_actuators=r.names(simulation.get("drop_actuators", []), "simulation.drop_actuators"),
     )

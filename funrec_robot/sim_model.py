@@ -220,6 +220,12 @@ def build_mujoco_spec(
             raise RobotDescriptionError(scene_xml, f"MuJoCo cannot load the scene: {exc}") from exc
         world.option.timestep = min(world.option.timestep, robot_spec.option.timestep)
     world.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    # MuJoCo keeps the parent's physics options on attaching and printed a warning block to stderr for each one the
+    # robot's file sets otherwise (Spot's impratio and cone, Stretch's noslip iterations), before every plan's and
+    # check's one-line answer. The robot's spec takes the scene's options, which stand either way.
+    for name in _OPTION_FIELDS:
+        value = getattr(world.option, name)
+        setattr(robot_spec.option, name, value.copy() if isinstance(value, np.ndarray) else value)
     pos, quat_wxyz = _T_to_pos_quat(np.eye(4) if T_world_base is None else T_world_base)
     frame = world.worldbody.add_frame(pos=pos, quat=quat_wxyz)
     body = frame.attach_body(robot_spec.body(robot.root_body), ROBOT_PREFIX, "")
@@ -227,6 +233,10 @@ def build_mujoco_spec(
     body.pos = [0.0, 0.0, robot.base_height]
     body.quat = [1.0, 0.0, 0.0, 0.0]
     return world
+
+
+_OPTION_FIELDS = tuple(name for name in dir(mujoco.MjSpec().option) if not name.startswith("_"))
+"""Physics options of a spec (``mjsOption``'s fields)."""
 
 
 def build_mujoco_model(

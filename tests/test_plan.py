@@ -223,6 +223,31 @@ def test_unreachable_part_is_refused_at_once_in_one_sentence(robot, scenes) -> N
     assert time.process_time() - started < 1.0  # refused before any optimisation
 
 
+@pytest.mark.parametrize(
+    ("shoulder_xy", "nearest_m"),
+    [
+        # a disc of 0.2 m round the shoulder, kept 5 cm off a counter at x >= 0: the shoulder stands 0.25 m before it
+        ((0.0, 0.0), 0.25),
+        # the shoulder 0.1 m ahead of the disc's centre: facing the counter, it stands 0.15 m before it
+        ((0.1, 0.0), 0.15),
+    ],
+)
+def test_a_handle_over_a_counter_is_out_of_reach_only_from_every_clear_base_pose(shoulder_xy, nearest_m) -> None:
+    from funrec_robot.reach import floor_reach_gap
+    from funrec_robot.robot_geometry import Circle
+    from funrec_robot.scene import polygon_from_points
+
+    counter = (polygon_from_points("counter", [[0.0, -1.0], [1.0, -1.0], [1.0, 1.0], [0.0, 1.0]]),)
+    disc = (Circle(np.zeros(2), 0.2, (0.0, 0.8)),)
+    wrist = np.array([0.3, 0.0, 1.5])  # 0.3 m over the counter, 0.5 m above the shoulder
+    distance = float(np.hypot(0.3 + nearest_m, 0.5))  # 0.743 m and 0.673 m
+    gap = floor_reach_gap(wrist, 1.0, np.array(shoulder_xy), disc, counter, distance - 0.03, 0.05)
+    # a lower bound: at most the true 3 cm, and less by no more than the grid's and the heading step's slack (2 cm)
+    assert gap is not None and 0.01 < gap <= 0.03 + 1e-9
+    assert floor_reach_gap(wrist, 1.0, np.array(shoulder_xy), disc, counter, distance + 0.005, 0.05) is None
+    assert floor_reach_gap(wrist, 1.0, np.array(shoulder_xy), disc, (), distance - 0.03, 0.05) is None  # no counter
+
+
 @settings(deadline=None, max_examples=30)
 @given(seed=st.integers(0, 2**31 - 1), roll=st.floats(-1.2, 1.2), axis=st.integers(0, 2))
 def test_roll_to_hold_undoes_a_roll_about_the_axis(seed: int, roll: float, axis: int) -> None:
@@ -250,6 +275,22 @@ def test_falls_to_follows_gravity_on_a_drop_down_door():
     # gravity torque at most 5 * 9.81 * 0.3 = 14.7 N m; a 100 N m/rad spring about 0 wins everywhere past 0.15 rad
     held = mujoco.MjModel.from_xml_string(door.format(k=100))
     assert not falls_to(held, 0, 0.8, 1.45, 0.01)
+
+
+def test_the_approach_tested_for_collisions_is_the_one_the_plan_moves_along(robot, revolute) -> None:
+    """Ruckig synchronises the joints in time, not along one line: the collision test must sample the move at
+    the limits the plan is timed with (at the robot's full limits TIAGo's arm missed a knob it then swept
+    through). The plan's first approach move, to the pre-grasp pose where it dwells, is the tested one to 1e-9."""
+    from funrec_robot.whole_body import _approach_samples
+
+    gt, model, task, plan = revolute
+    approach = plan.segment("approach")
+    q = plan.q[approach.start : approach.end + 1]
+    still = np.flatnonzero(np.all(np.abs(plan.qd[approach.start : approach.end + 1]) < 1e-12, axis=1))
+    dwell = still[still > 0][0]  # the first sample at rest after the start: the pre-grasp (or via) pose
+    samples = _approach_samples(robot, model, q[0], q[dwell], PlanConfig())
+    assert len(samples) == dwell + 1
+    assert np.abs(samples - q[: dwell + 1]).max() < 1e-9
 
 
 def test_approach_touches_nothing_not_even_the_handle(robot, revolute) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from funrec_robot.bench import DEFAULT_FAMILY, BenchRow, _family, summarize
+from funrec_robot.bench import DEFAULT_FAMILY, BenchRow, _all_refused, _family, summarize
 
 
 def _row(case: str, family: str, passed: bool, refused: bool = False, cpu: float = 1.0) -> BenchRow:
@@ -32,3 +32,9 @@ def test_family_is_read_from_the_generator_spec() -> None:
     assert _family({"generator": {"spec": {"family": "dark"}}}) == "dark"
     assert _family({"generator": {"spec": {}}}) == DEFAULT_FAMILY
     assert _family({}) == DEFAULT_FAMILY
+
+
+def test_a_true_part_is_refused_on_twins_only_when_every_twin_part_was_refused() -> None:
+    assert _all_refused([("twin part_0: handle at 1.75 m; spot_arm reaches 0.00-1.60 m", True)])
+    assert not _all_refused([("twin part_0: refused", True), ("twin part_1: base placement: no pose", False)])
+    assert not _all_refused([])  # no twin part at all: the twin's failure, not the robot's refusal

@@ -90,6 +90,26 @@ def test_limit_overrides_replace_model_values(tmp_path: Path, document) -> None:
     assert (robot.q_min[i], robot.q_max[i], robot.effort_max[i]) == (-1.0, 1.0, 50.0)
 
 
+def test_a_robot_file_sets_how_far_its_fingers_open_to_let_go(tmp_path: Path, document) -> None:
+    """``gripper.release_gap`` (Fetch's 15 mm: its damped arm tracked the retreat loosely, and 5 mm fingers dragged
+    the handle, 57-67 N) replaces the planner's ``GraspConfig.release_gap`` (5 mm) for that robot alone."""
+    from funrec_robot.grasp import GraspConfig, release_command
+
+    config = GraspConfig()
+    default = load_robot(_write(tmp_path, document))
+    document["gripper"]["release_gap"] = 0.015
+    wider = load_robot(_write(tmp_path, document))
+    assert default.gripper.release_gap is None and wider.gripper.release_gap == 0.015
+    holding = default.gripper.command(0.01)
+    gripper = wider.gripper
+    # each finger 10 mm further from the handle: the command moves by 10 mm of finger travel, within the span
+    step = release_command(wider, holding, config) - release_command(default, holding, config)
+    assert step == pytest.approx(gripper.command(0.010) - gripper.closed)
+    document["gripper"]["release_gap"] = -0.01
+    with pytest.raises(RobotDescriptionError, match="gripper.release_gap"):
+        load_robot(_write(tmp_path, document))
+
+
 def test_fixed_base_robot(tmp_path: Path, document) -> None:
     """Base joints left out of 'base' must then be held; the base type becomes 'fixed'."""
     del document["base"]

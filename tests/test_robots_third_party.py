@@ -51,6 +51,24 @@ def test_tiago_is_a_differential_planar_base_with_a_torso_lift(tiago) -> None:
     assert robot.gripper.extra_actuators == ("gripper_right_finger_position",)
 
 
+def test_a_robot_whose_file_sets_other_physics_options_attaches_to_a_scene_silently(capfd, tmp_path: Path) -> None:
+    """Spot's file sets impratio 100 and an elliptic cone, Stretch's 3 noslip iterations; the scene's options stand
+    (as MuJoCo keeps the parent's), and no warning block precedes a plan's or check's one-line answer on stderr."""
+    import warnings
+
+    from funrec_robot.sim_model import build_mujoco_model
+
+    scene = tmp_path / "scene.xml"
+    scene.write_text("<mujoco><worldbody><geom type='plane' size='5 5 0.1'/></worldbody></mujoco>")
+    for name in ("spot_arm", "stretch3"):
+        robot = load_robot(ROBOTS / f"{name}.yaml")
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # a Python UserWarning (MuJoCo's attach conflict) fails the test
+            model = build_mujoco_model(robot, scene)
+        assert model.opt.impratio == 1.0 and model.opt.noslip_iterations == 0  # the scene's defaults
+    assert "Attach conflict" not in capfd.readouterr().err
+
+
 def test_spot_stands_on_a_planar_body_with_a_one_jaw_gripper() -> None:
     robot = load_robot(ROBOTS / "spot_arm.yaml")
     geometry = measure_robot(robot)

@@ -157,7 +157,9 @@ class _Converter:
         )
         if joint is not None:
             handle = vec3(np.asarray(self.model.handle) * self.model.scale)
-            body = Body(body.name, body.pos, body.geoms, body.bodies, joint, ((f"{name}_handle", handle),))
+            # The moving part lies inside its carcass's convex hull, which is what MuJoCo collides.
+            sites = ((f"{name}_handle", handle),)
+            body = Body(body.name, body.pos, body.geoms, body.bodies, joint, sites, touches_parent=False)
             self.moving, self.joint_name = body, joint.name
         return body
 

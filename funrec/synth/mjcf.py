@@ -100,6 +100,7 @@ class _Writer:
     def __init__(self, materials: dict[str, Material]) -> None:
         self.materials = materials
         self.meshes: list[ET.Element] = []
+        self.excluded: list[tuple[str, str]] = []
 
     def geom(self, parent: ET.Element, geom: Geom, name: str, extra: dict[str, str] | None = None) -> None:
         attrs = {"name": name, "pos": _fmt(geom.pos), "material": geom.material}
@@ -122,7 +123,10 @@ class _Writer:
             attrs.update({"type": "mesh", "mesh": mesh})
         elif geom.shape == "mesh":
             mesh = f"mesh_{len(self.meshes)}"
-            self.meshes.append(ET.Element("mesh", {"name": mesh, "file": geom.mesh, "scale": _fmt(geom.size)}))
+            # Mass from the mesh's own volume, not its convex hull's (Meta-World's hollow drawer weighed 80 kg).
+            self.meshes.append(
+                ET.Element("mesh", {"name": mesh, "file": geom.mesh, "scale": _fmt(geom.size), "inertia": "exact"})
+            )
             attrs.update({"type": "mesh", "mesh": mesh})
         else:
             attrs.update({"type": geom.shape, "size": _fmt(geom.size)})
@@ -137,6 +141,8 @@ class _Writer:
 
     def body(self, parent: ET.Element, body: Body) -> None:
         element = ET.SubElement(parent, "body", {"name": body.name, "pos": _fmt(body.pos)})
+        if not body.touches_parent:
+            self.excluded.append((parent.get("name", "world"), body.name))
         if body.yaw:
             element.set("euler", _fmt([0.0, 0.0, body.yaw]))
         if body.joint is not None:
@@ -239,6 +245,10 @@ def scene_to_mjcf(scene: Scene, rig: RenderRig | None = None, model_name: str = 
                 writer.geom(element, geom, f"{name}_g{k}", no_contact)
     for mesh in writer.meshes:
         asset.append(mesh)
+    if writer.excluded:
+        contact = ET.SubElement(root, "contact")
+        for body1, body2 in writer.excluded:
+            ET.SubElement(contact, "exclude", {"body1": body1, "body2": body2})
     ET.indent(root)
     return ET.tostring(root, encoding="unicode") + "\n"
 

@@ -170,6 +170,10 @@ class Body:
     yaw: float = 0.0
     """Rotation about the parent's z axis, radians (only a free-standing or angled furniture row
     uses it; everything below it is axis-aligned in the row frame)."""
+    touches_parent: bool = True
+    """False: no contacts between this body and its parent. A third-party moving part sits inside its
+    carcass's mesh, and MuJoCo collides a mesh as its convex hull: the hull of Meta-World's drawer case
+    holds the drawer (0.41 m deep), which then cannot move."""
 
 
 @dataclass(frozen=True)
