@@ -49,7 +49,7 @@ from funrec_robot.task import ArticulationTask, path_states, resolve_target
 from funrec_robot.task_bounds import check_task_bounds
 from funrec_robot.task_sources import load_task, locate_scene
 from funrec_robot.trajopt import BasePlacement, PlacementProblem, place_base
-from funrec_robot.whole_body import whole_body_configurations
+from funrec_robot.whole_body import approach_move, whole_body_configurations
 
 log = logging.getLogger(__name__)
 
@@ -421,12 +421,10 @@ def _timed(
     v, a = dynamic_limits(robot, model, config.effort_share_damping, config.effort_share_inertia)
     rc = config.retime
     moves = list(zip(configs["approach"][:-1], configs["approach"][1:]))
-    fast = config.approach_scale
     check_time_limit("timing (approach)")
-    approach = [point_to_point(q0, q1, fast * v, fast * a, rc) for q0, q1 in moves[:-1]]
+    approach = [approach_move(robot, model, q0, q1, config, config.approach_scale) for q0, q1 in moves[:-1]]
     approach.append(_hold(moves[-1][0], config.pregrasp_dwell, rc.dt))
-    slow = config.final_approach_scale
-    approach.append(point_to_point(*moves[-1], slow * v, slow * a, rc))
+    approach.append(approach_move(robot, model, *moves[-1], config, config.final_approach_scale))
     # The part state rides along as an extra path coordinate limited to the handle's speed and acceleration.
     radius = 1.0
     if task.joint_type == "revolute":

@@ -14,7 +14,7 @@ from funrec_robot.feasibility import GravityOverload, dynamic_limits, first_coll
 from funrec_robot.grasp import FLIP, GraspCandidate, handle_frames, offset_along_approach, offset_frame, release_command
 from funrec_robot.ik import WholeBodyIK
 from funrec_robot.plan_config import PlanConfig
-from funrec_robot.retime import point_to_point
+from funrec_robot.retime import Trajectory, point_to_point
 from funrec_robot.robot import RobotDescription
 from funrec_robot.scene import floor_geoms, geoms_near, part_geoms
 from funrec_robot.task import ArticulationTask
@@ -222,13 +222,19 @@ def _refine_path(
     return states, path, q_path
 
 
-def _approach_samples(robot: RobotDescription, model: mujoco.MjModel, q0: FloatArray, q1: FloatArray, config: PlanConfig) -> FloatArray:
-    """Every sample of the approach move as the plan times it (``plan._timed``: ruckig at ``approach_scale`` of the
-    dynamic limits). Ruckig synchronises the joints in time, not along one line, so other limits take another
-    path: tested at the robot's full limits, TIAGo's arm passed clear of a neighbouring door's knob and, as
-    planned, swept through it (``plain_pri_drawer_02``, 1.15 s in)."""
+def approach_move(robot: RobotDescription, model: mujoco.MjModel, q0: FloatArray, q1: FloatArray, config: PlanConfig,
+                  scale: float) -> Trajectory:
+    """One approach move as the plan times it: ruckig at ``scale`` of the dynamic limits (``plan._timed``), so that
+    the collision test below sees the path the plan makes. Ruckig synchronises the joints in time, not along one
+    line, so other limits take another path: tested at the robot's full limits, TIAGo's arm passed clear of a
+    neighbouring door's knob and, as planned, swept through it (``plain_pri_drawer_02``, 1.15 s in)."""
     v, a = dynamic_limits(robot, model, config.effort_share_damping, config.effort_share_inertia)
-    return point_to_point(q0, q1, config.approach_scale * v, config.approach_scale * a, config.retime).q
+    return point_to_point(q0, q1, scale * v, scale * a, config.retime)
+
+
+def _approach_samples(robot: RobotDescription, model: mujoco.MjModel, q0: FloatArray, q1: FloatArray, config: PlanConfig) -> FloatArray:
+    """Every sample of an approach move as the plan times it."""
+    return approach_move(robot, model, q0, q1, config, config.approach_scale).q
 
 
 def _require(
@@ -245,4 +251,4 @@ def _require(
         )
 
 
-__all__ = ["posture_along", "whole_body_configurations"]
+__all__ = ["approach_move", "posture_along", "whole_body_configurations"]

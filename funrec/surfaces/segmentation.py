@@ -465,7 +465,12 @@ def _transform(T_a_b: FloatArray, p_b: FloatArray) -> FloatArray:
     (N, 3) takes 3-30 ms in threaded OpenBLAS on a busy 2-core machine (measured), so the part
     model is kept as (3, M) columns.
     """
-    return T_a_b[:3, :3] @ np.ascontiguousarray(p_b.T) + T_a_b[:3, 3:]
+    return _apply(T_a_b, np.ascontiguousarray(p_b.T))
+
+
+def _apply(T_a_b: FloatArray, p_b: FloatArray) -> FloatArray:
+    """Apply a rigid transform to (3, N) column points (see :func:`_transform`)."""
+    return T_a_b[:3, :3] @ p_b + T_a_b[:3, 3:]
 
 
 MAX_PIECE_GRID_CELLS = 20_000_000
@@ -567,21 +572,22 @@ def _place_votes(views: list[_View], p_part: FloatArray, seen_as_part: BoolArray
     Q, M = seen_as_part.shape
     T_world_part = T_world_camera @ invert_transform(T_part_camera)
     T_part_world = invert_transform(T_world_part)
+    T_camera_world = invert_transform(T_world_camera)
     left = np.zeros(M, dtype=np.int64)
     stays = []  # per pair (a, b): voxels seen at a, moved away at b, with a surface still at their place at a
     for a in range(Q):
         seen = np.flatnonzero(seen_as_part[a])  # only these: a keyframe sees a fraction of the model
         if len(seen) == 0:
             continue
-        p_a = T_world_part[a][:3, :3] @ p_part[:, seen] + T_world_part[a][:3, 3:]
+        p_a = _apply(T_world_part[a], p_part[:, seen])
         for b in range(Q):
             if b == a:
                 continue
             z = np.linalg.norm(p_a - T_world_camera[b][:3, 3:], axis=0)
-            away = np.linalg.norm((T_world_part[b] @ T_part_world[a])[:3] @ np.vstack([p_a, np.ones(len(seen))]) - p_a, axis=0)
+            away = np.linalg.norm(_apply(T_world_part[b] @ T_part_world[a], p_a) - p_a, axis=0)
             moved = away > 2 * depth_tolerance(z, config.depth_tolerance_m, config.depth_tolerance_range_m)
             if moved.any():
-                agree, free, _, _ = _depth_test(p_a[:, moved], invert_transform(T_world_camera[b]), K, views[b].depth_m, config)
+                agree, free, _, _ = _depth_test(p_a[:, moved], T_camera_world[b], K, views[b].depth_m, config)
                 left[seen[moved][free]] += 1
                 if agree.any():
                     stays.append((b, seen[moved][agree], p_a[:, moved][:, agree]))
@@ -591,8 +597,7 @@ def _place_votes(views: list[_View], p_part: FloatArray, seen_as_part: BoolArray
         return left, stayed
     model = cKDTree(p_part[:, proven].T)
     for b, still, p_place in stays:
-        p_b = T_part_world[b][:3, :3] @ p_place + T_part_world[b][:3, 3:]
-        gap, _ = model.query(p_b.T, distance_upper_bound=config.depth_tolerance_m)
+        gap, _ = model.query(_apply(T_part_world[b], p_place).T, distance_upper_bound=config.depth_tolerance_m)
         stayed[still[~np.isfinite(gap)]] += 1
     return left, stayed
 
