@@ -21,7 +21,12 @@ $(STAMP): pyproject.toml
 	fi
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e ".[test]"
+	@# Open3D's wheel is 400 MB; a dropped connection once failed CI after 5 resumes. Resume harder, and
+	@# retry the whole install (wheels already complete come from pip's cache).
+	for attempt in 1 2 3; do \
+	  $(BIN)/python -m pip install -q --retries 10 --resume-retries 50 -e ".[test]" && break; \
+	  [ $$attempt = 3 ] && exit 1; echo "pip install failed (attempt $$attempt of 3); retrying in 30 s"; sleep 30; \
+	done
 	touch $(STAMP)
 
 setup: $(STAMP)
