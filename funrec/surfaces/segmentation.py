@@ -558,9 +558,12 @@ def _place_votes(views: list[_View], p_part: FloatArray, seen_as_part: BoolArray
     behind the static surface, unseen), but they never leave: another keyframe sees them still
     standing where they were. The part's own surfaces leave free space or are hidden behind the
     moved part (no vote), so this costs them nothing. A surface still there is not counted where
-    the model at ``b``'s pose covers the place with voxels that left some place themselves (a
-    drawer's floor sliding along itself: its front strip leaves the carcass' front); a static
-    shelf or ceiling that a turn carries onto itself is covered only by voxels that never left.
+    the model at ``b``'s pose covers the place: a slide carries every surface parallel to it onto
+    itself (a drawer's floor, its sides), so any model voxel covers; a turn carries only planes
+    normal to its axis onto themselves, and a static shelf or ceiling is covered only by voxels
+    that never left, so there only voxels that left some place themselves cover (measured on the
+    pickled keyframes of five sequences: a sliding wardrobe panel kept 96 % of its voxels with any
+    voxel covering, 62 % with proven ones; a glazed wall cabinet's ceiling 62 % against 27 %).
     A voxel with no vote either way is kept: a strip near a hinge that moves less than 2 tau, or
     a surface whose places are hidden at every other keyframe. A shelf that the door reveals and
     keyframes see at one opening only is such a surface, but so is a drawer's back panel seen
@@ -590,16 +593,25 @@ def _place_votes(views: list[_View], p_part: FloatArray, seen_as_part: BoolArray
                 agree, free, _, _ = _depth_test(p_a[:, moved], T_camera_world[b], K, views[b].depth_m, config)
                 left[seen[moved][free]] += 1
                 if agree.any():
-                    stays.append((b, seen[moved][agree], p_a[:, moved][:, agree]))
+                    stays.append((b, _slides(T_world_part[b] @ T_part_world[a], p_a, config.depth_tolerance_m),
+                                  seen[moved][agree], p_a[:, moved][:, agree]))
     stayed = np.zeros(M, dtype=np.int64)
     proven = left > 0
     if not proven.any():
         return left, stayed
-    model = cKDTree(p_part[:, proven].T)
-    for b, still, p_place in stays:
-        gap, _ = model.query(_apply(T_part_world[b], p_place).T, distance_upper_bound=config.depth_tolerance_m)
+    models = {False: cKDTree(p_part[:, proven].T), True: cKDTree(p_part.T)}
+    for b, slides, still, p_place in stays:
+        gap, _ = models[slides].query(_apply(T_part_world[b], p_place).T, distance_upper_bound=config.depth_tolerance_m)
         stayed[still[~np.isfinite(gap)]] += 1
     return left, stayed
+
+
+def _slides(T_b_a: FloatArray, p: FloatArray, tolerance_m: float) -> bool:
+    """Is the motion ``T_b_a`` a slide over the (3, N) points ``p``: does its turn move none of
+    them by ``tolerance_m`` beyond the translation of their centroid?"""
+    R = T_b_a[:3, :3]
+    offset = p - p.mean(axis=1, keepdims=True)
+    return bool(np.linalg.norm((R - np.eye(3)) @ offset, axis=0).max() < tolerance_m)
 
 
 def _main_pieces(p_part: FloatArray, cell_m: float, min_fraction: float) -> BoolArray:
