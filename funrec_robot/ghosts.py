@@ -18,10 +18,12 @@ from scipy.spatial import ConvexHull, QhullError
 from funrec.typed import FloatArray, IntArray
 from funrec_robot.scene import box_corners, floor_geoms, geom_boxes, part_geoms, robot_bodies
 
-GHOST_TOLERANCE_M = 0.01
+GHOST_TOLERANCE_M = 0.015
 """A point of a static geom counts as inside the part when it lies within this distance outside the part's
-collision hull at some state, m: the static scene of a twin is fused on a 1 cm voxel grid (funrec's
-``FusionConfig.static_voxel_m``), so a copy of the part's surface sits up to a voxel off the part."""
+collision hull at some state, m: a twin fuses its static scene on a 1 cm voxel grid and its parts on a 5 mm one
+(funrec's ``FusionConfig.static_voxel_m``, ``part_voxel_m``), so a copy of the part's surface in the static
+scene sits up to a voxel of each off the part (on the r16 twins a copy of a handle at its held state lay 3 mm
+outside the part's hull and 10 mm from the contact point)."""
 GHOST_FRACTION = 0.9
 """A static geom is a ghost when at least this share of its vertices lie inside the part (as above) at some
 state: a geom of real furniture next to the part (a carcass side the door's edge grazes) has most of its
