@@ -86,3 +86,23 @@ def test_without_geoms_hides_them_from_collisions_on_a_copy() -> None:
     assert np.all(hidden.geom_contype[ghosts] == 0) and np.all(hidden.geom_conaffinity[ghosts] == 0)
     assert np.all(model.geom_contype[ghosts] == 1), "the caller's model must be left as it was"
     assert without_geoms(model, []) is model
+
+
+def test_hull_approximated_tells_a_twins_part_from_a_scene_of_primitives() -> None:
+    from funrec_robot.scene import hull_approximated
+
+    model = _scene()
+    assert not hull_approximated(model, model.joint("part_0").id)
+    # A twin's part: a mesh to show (colliding with nothing) and convex pieces of it to collide.
+    twin = mujoco.MjModel.from_xml_string("""
+<mujoco>
+  <asset><mesh name="shown" vertex="0 0 0  0.5 0 0  0 0 0.7  0.5 0 0.7  0 0.02 0  0.5 0.02 0  0 0.02 0.7  0.5 0.02 0.7"/></asset>
+  <worldbody>
+    <body name="part_0">
+      <joint name="part_0" type="hinge" axis="0 0 -1" range="0 1.5"/>
+      <geom name="part_0_visual" type="mesh" mesh="shown" contype="0" conaffinity="0"/>
+      <geom name="part_0_collision_000" type="box" pos="0.25 0.01 0.35" size="0.25 0.01 0.35"/>
+    </body>
+  </worldbody>
+</mujoco>""")
+    assert hull_approximated(twin, twin.joint("part_0").id)
