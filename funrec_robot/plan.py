@@ -272,7 +272,7 @@ def _handle_path(
             # A part that gravity carries on to the requested state (a drop-down door) is let go there and
             # falls open: the plan's target stays the requested one.
             step = config.free_range_step if task.joint_type == "revolute" else config.free_range_step_m
-            if falls_to(model, joint, target_state, reach_capped["requested"], step):
+            if falls_to(model, joint, target_state, reach_capped["requested"], step, not config.fall_ignores_friction):
                 final_state = reach_capped["requested"]
                 reach_capped["released_to_fall"] = True
                 if task.joint_type == "revolute" and task.pivot_world is not None:
