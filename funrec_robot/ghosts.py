@@ -94,40 +94,67 @@ def part_ghosts(
     if not len(moving) or not len(others):
         return np.zeros(0, dtype=np.int64)
     data = mujoco.MjData(model)
-    mujoco.mj_kinematics(model, data)
     body = int(model.jnt_bodyid[joint])
     qadr = model.jnt_qposadr[joint]
-    centre, R, half = geom_boxes(model, data, others)
-    extent = np.einsum("kij,kj->ki", np.abs(R), half)
-    points = [_geom_points(model, data, int(g)) for g in others]
-    owner = np.repeat(np.arange(len(others)), [len(p) for p in points])
-    points = np.vstack(points)
-    others_planes = [_hull_halfspaces(model, int(g)) for g in others]
-    others_pose = (data.geom_xpos[others].copy(), data.geom_xmat[others].reshape(-1, 3, 3).copy())
-    halfspaces = [_hull_halfspaces(model, int(g)) for g in moving]
+    states = np.atleast_1d(np.asarray(states, dtype=np.float64))
     data.qpos[:] = model.qpos0
     data.qpos[qadr] = 0.0
     mujoco.mj_kinematics(model, data)
     p_body_contact = data.xmat[body].reshape(3, 3).T @ (np.asarray(p_world_contact, dtype=np.float64) - data.xpos[body])
-    inside = np.zeros(len(points), dtype=bool)
-    holds = np.zeros(len(others), dtype=bool)
-    for state in np.atleast_1d(np.asarray(states, dtype=np.float64)):
-        data.qpos[:] = model.qpos0
+    # The part's boxes at each state, and the box round them all: only static geoms that meet it can be ghosts.
+    swept = []
+    for state in states:
         data.qpos[qadr] = state
         mujoco.mj_kinematics(model, data)
+        centre, R, half = geom_boxes(model, data, moving)
+        extent = np.einsum("kij,kj->ki", np.abs(R), half) + tolerance
         contact = data.xpos[body] + data.xmat[body].reshape(3, 3) @ p_body_contact
-        near = np.all(np.abs(contact - centre) <= extent + tolerance, axis=1)
-        for k in np.flatnonzero(near & ~holds):
-            local = others_pose[1][k].T @ (contact - others_pose[0][k])
-            holds[k] = np.max(others_planes[k][:, :3] @ local + others_planes[k][:, 3]) <= tolerance
-        p_centre, p_R, p_half = geom_boxes(model, data, moving)
+        swept.append((centre, extent, data.geom_xpos[moving].copy(), data.geom_xmat[moving].reshape(-1, 3, 3).copy(), contact))
+    low = np.min([np.min(c - e, axis=0) for c, e, *_ in swept], axis=0)
+    high = np.max([np.max(c + e, axis=0) for c, e, *_ in swept], axis=0)
+    data.qpos[:] = model.qpos0
+    mujoco.mj_kinematics(model, data)
+    centre, R, half = geom_boxes(model, data, others)
+    extent = np.einsum("kij,kj->ki", np.abs(R), half)
+    others = others[np.all((centre - extent <= high) & (centre + extent >= low), axis=1)]
+    if not len(others):
+        return np.zeros(0, dtype=np.int64)
+    points = [_geom_points(model, data, int(g)) for g in others]
+    owner = np.repeat(np.arange(len(others)), [len(p) for p in points])
+    first = np.concatenate([[0], np.cumsum([len(p) for p in points])])
+    points = np.vstack(points)
+    halfspaces = [_hull_halfspaces(model, int(g)) for g in moving]
+    inside = np.zeros(len(points), dtype=bool)
+    holds = np.zeros(len(others), dtype=bool)
+    planes_of: dict[int, FloatArray] = {}
+    centre, R, half = geom_boxes(model, data, others)
+    extent = np.einsum("kij,kj->ki", np.abs(R), half) + tolerance
+    for p_centre, p_extent, xpos, xmat, contact in swept:
+        # The handle's contact point at this state inside a static geom's hull.
+        for k in np.flatnonzero(~holds & np.all(np.abs(contact - centre) <= extent, axis=1)):
+            if k not in planes_of:
+                planes_of[k] = _hull_halfspaces(model, int(others[k]))
+            planes = planes_of[k]
+            local = data.geom_xmat[others[k]].reshape(3, 3).T @ (contact - data.geom_xpos[others[k]])
+            holds[k] = np.max(planes[:, :3] @ local + planes[:, 3]) <= tolerance
+        # Static vertices inside the part's hulls at this state: of the geoms whose boxes meet the box round the
+        # part, then within each piece's box, then inside its hull.
+        low, high = (p_centre - p_extent).min(axis=0), (p_centre + p_extent).max(axis=0)
+        meet = np.flatnonzero(np.all((centre - extent <= high) & (centre + extent >= low), axis=1))
+        if not len(meet):
+            continue
+        todo = np.concatenate([np.arange(first[k], first[k + 1]) for k in meet])
+        todo = todo[~inside[todo]]
         for k, planes in enumerate(halfspaces):
-            box = np.einsum("ij,j->i", np.abs(p_R[k]), p_half[k]) + tolerance
-            todo = np.flatnonzero(~inside & np.all(np.abs(points - p_centre[k]) <= box, axis=1))
             if not len(todo):
+                break
+            near = todo[np.all(np.abs(points[todo] - p_centre[k]) <= p_extent[k], axis=1)]
+            if not len(near):
                 continue
-            local = (points[todo] - data.geom_xpos[moving[k]]) @ data.geom_xmat[moving[k]].reshape(3, 3)
-            inside[todo] = np.max(local @ planes[:, :3].T + planes[:, 3], axis=1) <= tolerance
+            local = (points[near] - xpos[k]) @ xmat[k]  # p_geom = R^T (p_world - x)
+            hit = near[np.max(local @ planes[:, :3].T + planes[:, 3], axis=1) <= tolerance]
+            inside[hit] = True
+            todo = np.setdiff1d(todo, hit, assume_unique=True)
     share = np.bincount(owner, weights=inside, minlength=len(others)) / np.bincount(owner, minlength=len(others))
     return others[(share >= fraction) | holds]
 
