@@ -262,10 +262,7 @@ def jaw_offset(task: ArticulationTask, geometry: RobotGeometry, config: GraspCon
     if geometry.fixed_jaw is None:
         return 0.0
     face, side = geometry.fixed_jaw
-    # A twin does not know the handle's width: its mesh gives an upper bound (a bar 8 mm thick measures 11-23 mm
-    # on the r16 twins), nearer than the thickest handle expected (35 mm, which left Spot's fixed jaw 13-17 mm
-    # off the bench's bars: the moving jaw then dragged the bar across, 55-330 N at the grasp).
-    width = next(w for w in (task.handle_width, task.handle_width_bound, config.unknown_handle_width) if w is not None)
+    width = task.handle_width if task.handle_width is not None else config.unknown_handle_width
     clearance = config.fixed_jaw_clearance if task.handle_axis_world is not None else config.fixed_jaw_knob_clearance
     centre = face - side * (width / 2.0 + clearance)
     return centre if side * centre < 0.0 else 0.0

@@ -89,9 +89,6 @@ class HandleShape:
     """Extent of the handle's points along the handle axis, m; None if not told."""
     p_centre: FloatArray | None
     """(3,) centroid of the handle's points, moved along the approach to the contact's depth; None if not told."""
-    thickness: float | None = None
-    """Extent of the handle's points across the handle axis and the approach (between the pads), m; None if not
-    told. The mesh's noise thickens it: 11-23 mm for the bench's 8-15 mm bars on the r16 twins, never less."""
 
     @property
     def is_knob(self) -> bool:
@@ -124,7 +121,7 @@ def measure_handle(
         return HandleShape(standoff, None, None)
     centre = p_part[handle].mean(axis=0)
     centre -= approach * float((centre - p_contact) @ approach)
-    return HandleShape(standoff, float(np.ptp(along[handle])), centre, float(np.ptp(across[handle])))
+    return HandleShape(standoff, float(np.ptp(along[handle])), centre)
 
 
 __all__ = ["KNOB_MAX_LENGTH_M", "HandleShape", "front_standoff", "measure_handle"]

@@ -75,10 +75,6 @@ class ArticulationTask:
     handle_depth: float | None = None
     """Extent of the handle along the approach, m (it crosses the pads when the grasp is tilted); None if
     unknown (taken equal to the width)."""
-    handle_width_bound: float | None = None
-    """When ``handle_width`` is unknown, an upper bound of it measured on a twin's part mesh, m (None: not
-    measured): a fixed jaw is placed from it (``grasp.jaw_offset``); the fingers still open and close as for
-    an unknown handle."""
     demo_times: FloatArray = field(default_factory=lambda: np.zeros(0))
     """(K,) times of the demonstrated interaction, s from its start; empty if none."""
     demo_states: FloatArray = field(default_factory=lambda: np.zeros(0))

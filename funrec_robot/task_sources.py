@@ -276,10 +276,10 @@ def task_from_twin(
         source, files = f"twin:{root.resolve()}", (articulation_path,)
     # The handle's standoff from the part's front and its shape, measured on the part mesh around a contact
     # the hand made (not around one guessed on the front itself: the planner then assumes a standoff).
-    standoff, thickness = None, None
+    standoff = None
     if affordance is not None:
         shape = measure_handle(_part_points(root, joint), p_contact, approach, handle_axis)
-        standoff, thickness = shape.standoff, shape.thickness
+        standoff = shape.standoff
         if shape.is_knob and shape.p_centre is not None:
             p_contact, handle_axis = shape.p_centre, None
     T = np.eye(4) if T_scene_twin is None else np.asarray(T_scene_twin, dtype=np.float64)
@@ -294,7 +294,6 @@ def task_from_twin(
         approach_world=_transform_vector(T, approach),
         handle_axis_world=None if handle_axis is None else _transform_vector(T, handle_axis),
         surface_offset=standoff,
-        handle_width_bound=thickness,
         demo_times=demo_times,
         demo_states=demo_states,
         source=source,
