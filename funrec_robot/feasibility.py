@@ -190,16 +190,16 @@ def joint_loads(model: mujoco.MjModel, joint: int, states: FloatArray) -> FloatA
     return np.array(out)
 
 
-def falls_to(model: mujoco.MjModel, joint: int, start: float, target: float, step: float) -> bool:
+def falls_to(model: mujoco.MjModel, joint: int, start: float, target: float, step: float, friction: bool = True) -> bool:
     """Whether gravity alone carries a scene joint's part from ``start`` to ``target`` (a drop-down door let go
     part-way): its gravity torque or force, at every state between them scanned every ``step``, points towards
-    ``target`` and exceeds the joint's dry friction."""
+    ``target`` and exceeds the joint's dry friction (with ``friction``; without, any load towards it counts)."""
     if abs(target - start) < 1e-9:
         return True
     states = np.linspace(start, target, max(2, int(np.ceil(abs(target - start) / step)) + 1))[:-1]
     direction = np.sign(target - start)
-    friction = model.dof_frictionloss[int(model.jnt_dofadr[joint])]
-    return bool(np.all(-direction * joint_loads(model, joint, states) > friction))
+    holding = model.dof_frictionloss[int(model.jnt_dofadr[joint])] if friction else 0.0
+    return bool(np.all(-direction * joint_loads(model, joint, states) > holding))
 
 
 def resting_force(model: mujoco.MjModel, joint: int, states: FloatArray, radius: float) -> FloatArray:

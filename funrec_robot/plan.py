@@ -28,6 +28,7 @@ from funrec_robot.feasibility import (
     first_blocked_state,
     resting_force,
 )
+from funrec_robot.ghosts import part_ghosts, range_states, without_geoms
 from funrec_robot.grasp import grasp_candidates, graspable_tilts, release_command
 from funrec_robot.grasp_frames import T_world_grasp_canonical, grasp_free_axis
 from funrec_robot.plan_config import PlanConfig
@@ -271,7 +272,7 @@ def _handle_path(
             # A part that gravity carries on to the requested state (a drop-down door) is let go there and
             # falls open: the plan's target stays the requested one.
             step = config.free_range_step if task.joint_type == "revolute" else config.free_range_step_m
-            if falls_to(model, joint, target_state, reach_capped["requested"], step):
+            if falls_to(model, joint, target_state, reach_capped["requested"], step, not config.fall_ignores_friction):
                 final_state = reach_capped["requested"]
                 reach_capped["released_to_fall"] = True
                 if task.joint_type == "revolute" and task.pivot_world is not None:
@@ -567,6 +568,13 @@ def _plan_interaction(robot: RobotDescription, scene_xml: str | Path, task: Arti
     refusal = reach_refusal(robot, geometry, task)
     if refusal is not None:
         raise Refusal(f"part '{task.part}': {refusal}")
+    # A twin's static scene may hold copies of the part (``ghosts``): the planner does not avoid them.
+    ghosts = part_ghosts(model, joint, range_states(model, joint, task.state_range), task.p_world_contact)
+    ghost_names = [model.geom(int(g)).name for g in ghosts]
+    if ghost_names:
+        log.info("part '%s': %d static geom(s) lie inside the part within its range, not obstacles: %s",
+                 task.part, len(ghost_names), ", ".join(ghost_names))
+        model = without_geoms(model, ghosts)
     if geometry.lift_range is not None:  # a torso or mast starts at the handle's height; the IK moves it on
         robot = lifted(robot, geometry, handle_height(task), config.ik.limit_margin)
         geometry = measure_robot(robot)
@@ -610,7 +618,7 @@ def _plan_interaction(robot: RobotDescription, scene_xml: str | Path, task: Arti
         p_world_grasp_target=path[-1, :3, 3] + grasp.depth * path[-1, :3, 2],
         grasp_free_axis=grasp_free_axis(task),
         base_poses=placement.poses,
-        provenance=_provenance(robot, scene_xml, task, target, handle, solution, timings, cpu_started),
+        provenance=_provenance(robot, scene_xml, task, target, handle, solution, timings, cpu_started) | {"ghost_geoms": ghost_names},
         release_from_grip=task.handle_width is None,
     )
 

@@ -98,6 +98,14 @@ class PlanConfig:
     fall_sweep_margin: float = float(np.deg2rad(15.0))
     """The base keeps clear of a part let go to fall over this much beyond the state it is expected to come to
     rest at (a twin's range is the demonstrated one; the real stop may lie further), rad."""
+    fall_ignores_friction: bool = True
+    """Whether a part let go where the arm's reach ends falls on is judged on gravity alone, not against its joint's
+    friction: a twin's friction is no measurement (funrec's export sets it to 1.5 times the largest gravity load
+    over the range, ``ExportConfig.friction_gravity_margin``, so that the twin holds a part where it is put), so on
+    a twin no drop-down door would fall, and plans on the r16 twins let the dishwasher's and oven's doors go as if
+    held; in their true scenes they fell to their stops, 0.5 rad beyond the planned target. The plan then keeps
+    the base clear of the fall and turns the fingers off the bar whatever the friction; a door that friction does
+    hold stays where it was let go, short of the plan's target."""
     fall_rest_force: float = 25.0
     """Such a part is let go no further than where its weight presses on the finger it rests on with this
     force, N: the hand then slides off the bar against as much friction again (mu ~ 1), well below the

@@ -383,6 +383,15 @@ def geoms_near(
     return geoms[distance <= radius]
 
 
+def hull_approximated(model: mujoco.MjModel, joint: int) -> bool:
+    """Whether a part's collision geoms approximate a display mesh of its own: its subtree holds a mesh geom that
+    collides with nothing beside geoms that collide (a twin, FORMATS.md section 2: the fused mesh to show and
+    convex pieces of it to collide), rather than being its exact shape (a scene of primitive geoms)."""
+    geoms = part_geoms(model, joint)
+    shown = (model.geom_contype[geoms] == 0) & (model.geom_conaffinity[geoms] == 0)
+    return bool(np.any(shown & (model.geom_type[geoms] == mujoco.mjtGeom.mjGEOM_MESH)) and np.any(~shown))
+
+
 def floor_geoms(model: mujoco.MjModel, geoms: npt.ArrayLike) -> IntArray:
     """(k,) those of ``geoms`` that lie below ``FLOOR_TOP_M`` at the reference configuration (the floor)."""
     geoms = np.asarray(geoms, dtype=np.int64)
@@ -403,6 +412,7 @@ __all__ = [
     "geom_boxes",
     "geoms_near",
     "gravity_load",
+    "hull_approximated",
     "part_front",
     "part_geoms",
     "part_joint",

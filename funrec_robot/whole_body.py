@@ -16,7 +16,7 @@ from funrec_robot.ik import WholeBodyIK
 from funrec_robot.plan_config import PlanConfig
 from funrec_robot.retime import Trajectory, point_to_point
 from funrec_robot.robot import RobotDescription
-from funrec_robot.scene import floor_geoms, geoms_near, part_geoms
+from funrec_robot.scene import floor_geoms, geoms_near, hull_approximated, part_geoms
 from funrec_robot.task import ArticulationTask
 from funrec_robot.trajopt import BasePlacement
 
@@ -67,7 +67,14 @@ def whole_body_configurations(
     data.qpos[model.jnt_qposadr[joint]] = start_state
     mujoco.mj_kinematics(model, data)
     contact = frames[0, :3, 3] + depth * frames[0, :3, 2]
-    handle = geoms_near(model, data, part_geoms(model, joint), contact, config.grasp.handle_radius)
+    radius = config.grasp.handle_radius
+    if hull_approximated(model, joint):
+        # A twin's part collides as convex pieces of its fused mesh, and the pieces round the handle bridge it to
+        # the front behind (on the r16 twins the fingers stood 2-20 mm inside pieces whose boxes lay 14-27 mm from
+        # the contact point, and the IK missed doors at 1.2-1.4 rad by 12-24 mm). The gripper may touch the
+        # pieces as far from the contact point as the front: the grasp keeps the fingertips off the front itself.
+        radius += config.grasp.unknown_surface_offset if task.surface_offset is None else task.surface_offset
+    handle = geoms_near(model, data, part_geoms(model, joint), contact, radius)
     base_points = np.column_stack([placement.poses[:, :2], np.full(len(placement.poses), 0.5)])
     ik = WholeBodyIK(robot, model, joint, np.vstack([frames[:, :3, 3], base_points]), handle, config.ik,
                      freeze_base=robot.drive == "differential")

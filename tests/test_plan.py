@@ -277,6 +277,23 @@ def test_falls_to_follows_gravity_on_a_drop_down_door():
     assert not falls_to(held, 0, 0.8, 1.45, 0.01)
 
 
+def test_a_twins_friction_does_not_decide_whether_a_drop_down_door_falls():
+    """funrec's export gives a twin's joint 1.5 times its largest gravity load as friction, so the door holds
+    where it is let go; the plan judges the fall on gravity alone (PlanConfig.fall_ignores_friction)."""
+    import mujoco
+
+    from funrec_robot.feasibility import falls_to
+
+    # gravity torque at most 5 * 9.81 * 0.3 = 14.7 N m; 1.5 times that as friction
+    door = mujoco.MjModel.from_xml_string("""<mujoco><worldbody><body name="door" pos="0 0 0.1">
+      <joint name="hinge" type="hinge" axis="1 0 0" range="0 1.5" frictionloss="22.1"/>
+      <geom type="box" pos="0 -0.01 0.3" size="0.25 0.01 0.3" mass="5"/></body></worldbody></mujoco>""")
+    assert not falls_to(door, 0, 0.8, 1.45, 0.01)
+    assert falls_to(door, 0, 0.8, 1.45, 0.01, friction=False)
+    assert not falls_to(door, 0, 0.8, 0.1, 0.01, friction=False)
+    assert PlanConfig().fall_ignores_friction
+
+
 def test_the_approach_tested_for_collisions_is_the_one_the_plan_moves_along(robot, revolute) -> None:
     """Ruckig synchronises the joints in time, not along one line: the collision test must sample the move at
     the limits the plan is timed with (at the robot's full limits TIAGo's arm missed a knob it then swept
