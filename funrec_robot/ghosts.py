@@ -30,14 +30,22 @@ state: a geom of real furniture next to the part (a carcass side the door's edge
 vertices outside the part's sweep."""
 
 
+def _mesh_vertices(model: mujoco.MjModel, geom: int) -> FloatArray | None:
+    """(V, 3) vertices of a mesh geom in its own frame; None for a primitive."""
+    if model.geom_type[geom] != mujoco.mjtGeom.mjGEOM_MESH:
+        return None
+    mesh = int(model.geom_dataid[geom])
+    start, count = int(model.mesh_vertadr[mesh]), int(model.mesh_vertnum[mesh])
+    return np.asarray(model.mesh_vert[start : start + count], dtype=np.float64)
+
+
 def _hull_halfspaces(model: mujoco.MjModel, geom: int) -> FloatArray:
     """(F, 4) halfspaces ``n . p + d <= 0`` of a geom's collision hull in its own frame (its box for a
     primitive, the convex hull of its vertices for a mesh: MuJoCo collides a mesh as its hull)."""
-    if model.geom_type[geom] == mujoco.mjtGeom.mjGEOM_MESH:
-        mesh = int(model.geom_dataid[geom])
-        start, count = int(model.mesh_vertadr[mesh]), int(model.mesh_vertnum[mesh])
+    vertices = _mesh_vertices(model, geom)
+    if vertices is not None:
         try:
-            return np.asarray(ConvexHull(model.mesh_vert[start : start + count]).equations, dtype=np.float64)
+            return np.asarray(ConvexHull(vertices).equations, dtype=np.float64)
         except QhullError:  # a flat or degenerate piece: its box
             pass
     centre, half = model.geom_aabb[geom, :3], model.geom_aabb[geom, 3:]
@@ -47,16 +55,10 @@ def _hull_halfspaces(model: mujoco.MjModel, geom: int) -> FloatArray:
 
 def _geom_points(model: mujoco.MjModel, data: mujoco.MjData, geom: int) -> FloatArray:
     """(P, 3) world points that span a geom: a mesh's vertices, a primitive's box corners."""
-    R = data.geom_xmat[geom].reshape(3, 3)
-    if model.geom_type[geom] == mujoco.mjtGeom.mjGEOM_MESH:
-        mesh = int(model.geom_dataid[geom])
-        start, count = int(model.mesh_vertadr[mesh]), int(model.mesh_vertnum[mesh])
-        local = model.mesh_vert[start : start + count]
-    else:
-        centre, half = model.geom_aabb[geom, :3], model.geom_aabb[geom, 3:]
-        signs = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T
-        local = centre + signs * half
-    return data.geom_xpos[geom] + np.asarray(local, dtype=np.float64) @ R.T
+    vertices = _mesh_vertices(model, geom)
+    if vertices is None:
+        return box_corners(*geom_boxes(model, data, [geom]))[0]
+    return data.geom_xpos[geom] + vertices @ data.geom_xmat[geom].reshape(3, 3).T
 
 
 def part_ghosts(
@@ -116,7 +118,8 @@ def part_ghosts(
     mujoco.mj_kinematics(model, data)
     centre, R, half = geom_boxes(model, data, others)
     extent = np.einsum("kij,kj->ki", np.abs(R), half)
-    others = others[np.all((centre - extent <= high) & (centre + extent >= low), axis=1)]
+    near_part = np.all((centre - extent <= high) & (centre + extent >= low), axis=1)
+    others, centre, extent = others[near_part], centre[near_part], extent[near_part] + tolerance
     if not len(others):
         return np.zeros(0, dtype=np.int64)
     points = [_geom_points(model, data, int(g)) for g in others]
@@ -127,8 +130,6 @@ def part_ghosts(
     inside = np.zeros(len(points), dtype=bool)
     holds = np.zeros(len(others), dtype=bool)
     planes_of: dict[int, FloatArray] = {}
-    centre, R, half = geom_boxes(model, data, others)
-    extent = np.einsum("kij,kj->ki", np.abs(R), half) + tolerance
     for p_centre, p_extent, xpos, xmat, contact in swept:
         # The handle's contact point at this state inside a static geom's hull.
         for k in np.flatnonzero(~holds & np.all(np.abs(contact - centre) <= extent, axis=1)):

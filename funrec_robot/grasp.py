@@ -137,6 +137,12 @@ def release_command(robot: RobotDescription, holding: float, config: GraspConfig
     return float(np.clip(holding + looser, low, high))
 
 
+def surface_offset(task: ArticulationTask, config: GraspConfig) -> float:
+    """How far the handle's contact point stands in front of the part's front, m: the task's, or
+    ``config.unknown_surface_offset`` when the twin does not say."""
+    return task.surface_offset if task.surface_offset is not None else config.unknown_surface_offset
+
+
 def grasp_depth(
     task: ArticulationTask, geometry: RobotGeometry, opening: float, tilt: float, config: GraspConfig
 ) -> float | None:
@@ -144,7 +150,7 @@ def grasp_depth(
     at ``opening`` and tilted by ``tilt`` about the contact point, stays ``fingertip_clearance`` in front of
     the part's front, keeping the contact ``pad_margin`` inside the pads; None if the gap would then be
     below ``min_fingertip_clearance``."""
-    offset = task.surface_offset if task.surface_offset is not None else config.unknown_surface_offset
+    offset = surface_offset(task, config)
     corners = geometry.finger_corners.copy()
     # Fingers slide along the grasp y: move the corners from fully open to this opening.
     corners[:, 1] -= np.sign(corners[:, 1]) * max(finger_half_opening(geometry) - opening, 0.0)
@@ -199,7 +205,7 @@ def knob_roll_limit(task: ArticulationTask, geometry: RobotGeometry, depth: floa
     hand held still; the IK stopped 20 mm short). Beyond this turn the hand turns with the part."""
     if task.handle_axis_world is not None:
         return config.max_roll
-    offset = task.surface_offset if task.surface_offset is not None else config.unknown_surface_offset
+    offset = surface_offset(task, config)
     corners = np.vstack([geometry.finger_corners, geometry.closed_finger_corners, geometry.palm_corners])
     lateral, ahead = np.abs(corners[:, 0]), corners[:, 2] - depth
     limit = 0.0
@@ -336,6 +342,7 @@ __all__ = [
     "finger_half_opening",
     "grasp_candidates",
     "grasp_depth",
+    "surface_offset",
     "graspable_tilts",
     "handle_frames",
     "jaw_offset",

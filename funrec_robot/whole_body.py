@@ -11,7 +11,15 @@ from funrec.errors import PlanningError
 from funrec.typed import FloatArray
 from funrec_robot.budget import TimeLimitSpent
 from funrec_robot.feasibility import GravityOverload, dynamic_limits, first_collision, gravity_overload
-from funrec_robot.grasp import FLIP, GraspCandidate, handle_frames, offset_along_approach, offset_frame, release_command
+from funrec_robot.grasp import (
+    FLIP,
+    GraspCandidate,
+    handle_frames,
+    offset_along_approach,
+    offset_frame,
+    release_command,
+    surface_offset,
+)
 from funrec_robot.ik import WholeBodyIK
 from funrec_robot.plan_config import PlanConfig
 from funrec_robot.retime import Trajectory, point_to_point
@@ -73,7 +81,7 @@ def whole_body_configurations(
         # the front behind (on the r16 twins the fingers stood 2-20 mm inside pieces whose boxes lay 14-27 mm from
         # the contact point, and the IK missed doors at 1.2-1.4 rad by 12-24 mm). The gripper may touch the
         # pieces as far from the contact point as the front: the grasp keeps the fingertips off the front itself.
-        radius += config.grasp.unknown_surface_offset if task.surface_offset is None else task.surface_offset
+        radius += surface_offset(task, config.grasp)
     handle = geoms_near(model, data, part_geoms(model, joint), contact, radius)
     base_points = np.column_stack([placement.poses[:, :2], np.full(len(placement.poses), 0.5)])
     ik = WholeBodyIK(robot, model, joint, np.vstack([frames[:, :3, 3], base_points]), handle, config.ik,

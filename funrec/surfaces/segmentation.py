@@ -577,7 +577,8 @@ def _place_votes(views: list[_View], p_part: FloatArray, seen_as_part: BoolArray
     T_part_world = invert_transform(T_world_part)
     T_camera_world = invert_transform(T_world_camera)
     left = np.zeros(M, dtype=np.int64)
-    stays = []  # per pair (a, b): voxels seen at a, moved away at b, with a surface still at their place at a
+    stays = []  # per pair (a, b): the slide flag, voxels seen at a and moved away at b with a surface still at
+    # their place at a, and that place in the part frame at b's pose
     for a in range(Q):
         seen = np.flatnonzero(seen_as_part[a])  # only these: a keyframe sees a fraction of the model
         if len(seen) == 0:
@@ -586,22 +587,23 @@ def _place_votes(views: list[_View], p_part: FloatArray, seen_as_part: BoolArray
         for b in range(Q):
             if b == a:
                 continue
+            T_b_a = T_world_part[b] @ T_part_world[a]  # the part's motion from a's pose to b's, world
             z = np.linalg.norm(p_a - T_world_camera[b][:3, 3:], axis=0)
-            away = np.linalg.norm(_apply(T_world_part[b] @ T_part_world[a], p_a) - p_a, axis=0)
+            away = np.linalg.norm(_apply(T_b_a, p_a) - p_a, axis=0)
             moved = away > 2 * depth_tolerance(z, config.depth_tolerance_m, config.depth_tolerance_range_m)
             if moved.any():
                 agree, free, _, _ = _depth_test(p_a[:, moved], T_camera_world[b], K, views[b].depth_m, config)
                 left[seen[moved][free]] += 1
                 if agree.any():
-                    stays.append((b, _slides(T_world_part[b] @ T_part_world[a], p_a, config.depth_tolerance_m),
-                                  seen[moved][agree], p_a[:, moved][:, agree]))
+                    stays.append((_slides(T_b_a, p_a, config.depth_tolerance_m), seen[moved][agree],
+                                  _apply(T_part_world[b], p_a[:, moved][:, agree]).T))
     stayed = np.zeros(M, dtype=np.int64)
     proven = left > 0
     if not proven.any():
         return left, stayed
     models = {False: cKDTree(p_part[:, proven].T), True: cKDTree(p_part.T)}
-    for b, slides, still, p_place in stays:
-        gap, _ = models[slides].query(_apply(T_part_world[b], p_place).T, distance_upper_bound=config.depth_tolerance_m)
+    for slides, still, p_place_part in stays:
+        gap, _ = models[slides].query(p_place_part, distance_upper_bound=config.depth_tolerance_m)
         stayed[still[~np.isfinite(gap)]] += 1
     return left, stayed
 
