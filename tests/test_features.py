@@ -3,10 +3,11 @@ and rigid_ransac (per-correspondence tolerances, outliers)."""
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from funrec.camera.features import rigid_ransac, sample_depth
+from funrec.camera.features import rigid_ransac, sample_depth, visible_offset_px
 from funrec.geometry.fitting import RigidFit
 from funrec.geometry.transforms import make_transform
 
@@ -61,3 +62,21 @@ def test_rigid_ransac_per_point_tolerances_and_outliers() -> None:
     residual = np.linalg.norm(p_src @ fit.T_dst_src[:3, :3].T + fit.T_dst_src[:3, 3] - p_dst, axis=1)
     assert np.isclose(fit.rms_m, np.sqrt(np.mean(residual[fit.inliers] ** 2)), rtol=1e-12, atol=0.0)
     assert rigid_ransac(p_src[:2], p_dst[:2], sigma[:2], np.ones(2), rng, hypotheses=10) is None
+
+
+def test_visible_offset_sees_across_an_edge_not_along_it() -> None:
+    """A point on a straight edge shows an offset across the edge in full and one along it not at
+    all (the aperture problem); a point at a square's corner shows both in full. Tolerance 5 %:
+    Sobel gradients of a blurred step are symmetric, the residue comes from the square's other
+    edges entering the window at the corner."""
+    gray = np.zeros((120, 160), np.uint8)
+    gray[20:100, 40:120] = 200  # a bright square, corners at (40, 20) and (119, 99) in (u, v)
+    gray = cv2.GaussianBlur(gray, (5, 5), 1.0)
+    on_edge = np.array([[40.0, 60.0]])  # middle of the square's left edge (vertical)
+    corner = np.array([[40.0, 20.0]])
+    for offset, expected_edge in (([0.0, 3.0], 0.0), ([3.0, 0.0], 3.0), ([2.0, 2.0], 2.0)):
+        seen_edge = visible_offset_px(gray, on_edge, on_edge - offset, 21)[0]
+        seen_corner = visible_offset_px(gray, corner, corner - offset, 21)[0]
+        assert abs(seen_edge - expected_edge) < 0.05 * 3.0, (offset, seen_edge)
+        assert np.linalg.norm(offset) * 0.7 < seen_corner <= np.linalg.norm(offset) + 1e-9, (offset, seen_corner)
+    assert visible_offset_px(gray, np.zeros((0, 2)), np.zeros((0, 2)), 21).shape == (0,)

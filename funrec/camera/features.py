@@ -98,6 +98,42 @@ def track_klt(
     return uv1, ok
 
 
+def visible_offset_px(gray: UInt8Array, uv: FloatArray, uv_predicted: FloatArray, window_px: int) -> FloatArray:
+    """How much of each point's offset from a predicted position its image patch can show.
+
+    A patch constrains motion only across its gradients (the aperture problem): a corner sees an
+    offset in every direction, a point on a straight edge only across the edge, so a KLT track on an
+    edge may slide along it unseen. With ``J`` the structure tensor of the ``window_px`` patch at
+    ``uv`` (sum of gradient outer products, what KLT itself solves with) and ``d = uv - uv_predicted``,
+    the visible offset is ``sqrt(d^T J d / lambda_max(J))``: ``|d|`` at a corner, ``|n . d|`` on an
+    edge of normal ``n``.
+
+    Args:
+        gray: (H, W) uint8 image in which ``uv`` was tracked.
+        uv: (N, 2) tracked pixel positions.
+        uv_predicted: (N, 2) where a pose puts the same points.
+        window_px: side of the square patch, pixels (the KLT window).
+
+    Returns:
+        (N,) visible offsets, pixels.
+    """
+    if len(uv) == 0:
+        return np.zeros(0)
+    g = gray.astype(np.float32)
+    gx = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=3)
+    H, W = g.shape
+    col = np.clip(np.round(uv[:, 0]).astype(int), 0, W - 1)
+    row = np.clip(np.round(uv[:, 1]).astype(int), 0, H - 1)
+    window = (window_px, window_px)
+    a, b, c = (cv2.boxFilter(product, -1, window, normalize=False)[row, col].astype(np.float64)
+               for product in (gx * gx, gx * gy, gy * gy))
+    lambda_max = 0.5 * (a + c) + np.sqrt(0.25 * (a - c) ** 2 + b ** 2)
+    d = np.asarray(uv, dtype=np.float64) - uv_predicted
+    seen = a * d[:, 0] ** 2 + 2.0 * b * d[:, 0] * d[:, 1] + c * d[:, 1] ** 2
+    return np.sqrt(np.maximum(seen, 0.0) / np.maximum(lambda_max, 1e-9))
+
+
 def sample_depth(depth_m: FloatArray, uv: FloatArray, window_px: int, max_spread: float,
                  subpixel: bool = False) -> FloatArray:
     """Robust depth at sub-pixel positions: median of a small window, rejecting depth edges.
