@@ -205,11 +205,16 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
         cost, (axis, pivot) = _descend(cost, (axis, pivot), len(config.hinge_refine_steps_deg),
                                        _hinge_neighbours(normal, config), lambda a, p: score("revolute", a, p))
         best_of["revolute"] = (cost, "revolute", axis, pivot)
-    if "prismatic" in best_of:
-        cost, _, axis, _ = best_of["prismatic"]
-        cost, (axis, _) = _descend(cost, (axis, None), len(config.hinge_refine_steps_deg), _slide_neighbours(normal, config),
-                                   lambda a, p: score("prismatic", a, None))
-        best_of["prismatic"] = (cost, "prismatic", axis, None)
+    # A slide is not refined: it runs along one of the front's axes. Across the front (a drawer) along
+    # its normal, which the plane fit of hundreds of points fixes to a fraction of a degree, while the
+    # depth cost is flat in the slide's tilt (tilting by 8-4-2-1 deg steps and the tracks' slide against
+    # the normal, reconstruct + eval, f8e389e against this: plain_pri_drawer_01 8.1 -> 0.25 deg,
+    # dark_pri_drawer_00 5.1 -> 0.77, plain_pri_drawer_02 2.0 -> 0.18, pri_drawer_00 1.5 -> 0.74,
+    # geo_angled_pri_drawer_00 0.8 -> 0.31; worse: light_dim_pri_drawer_00 2.0 -> 2.9, whose normal is
+    # 2.9 off, mw_drawer_00 0.1 -> 0.5). Along the front (a sliding panel) along the edges of the
+    # surface it uncovered: a plain panel looks the same wherever it stands in its plane but at its
+    # edges (plain_pri_wardrobe_00: tilted out of the plane 12.9 deg off, turned within it 16.3, the
+    # edge 0.3).
     best = min(best_of.values(), key=lambda b: b[0]) if best_of else None
     if best is None or not best[0] < config.min_gain * static:
         logger.info("depth proposal: best cost %s vs still %.3f: no joint explains the surface that left",
@@ -220,21 +225,16 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
         logger.info("depth proposal: the tracks' %s (cost %.3f) explains the surface that left as well as the best "
                     "hypothesis, %s (cost %.3f)", rival[0], rival_cost, best[1], best[0])
     cost, joint_type, axis, pivot = best
-    if rival is not None and rival[0] == joint_type:
-        if joint_type == "revolute":
-            # a door's tracks lie on its leaf: depth agrees on the type, the tracks' part stands (swapping in
-            # depth's surface cost the textured rev_cabinet_left_00 ADD 95.5 -> 91.1, measured)
-            return DepthProposal(joint_type, axis, pivot, points, np.zeros(F), cost, static, rival_cost, True)
-        # a drawer's tracks often sit on what it carries, or on the walls beside a plain front: the tracks'
-        # joint (many tracks pin its axis) on depth's surface (plain drawers: ADD 42 -> 97, mIoU 44 -> 88).
-        # A panel sliding along its front keeps depth's slide, the edges of the surface it uncovered
-        # (_slide_neighbours): its few tracks sit on the handle and the panel's edge and carry the camera's
-        # drift along the slide (proposal alone, against the tracks' slide in the bench at dc34b2a:
-        # plain_pri_wardrobe_00 0.3 against 13.8 deg, person_elbow_pri_wardrobe_00 0.3 against 2.0,
-        # mw_window_00 0.05 against 0.3; a drawer's slide across its front is the other way round,
-        # pri_drawer_00 7.6 against 1.5)
-        if abs(axis @ normal) >= np.cos(np.pi / 4):
-            cost, (joint_type, axis, pivot) = rival_cost, rival
+    if rival is not None and rival[0] == joint_type == "revolute":
+        # a door's tracks lie on its leaf: depth agrees on the type, the tracks' part stands (swapping in
+        # depth's surface cost the textured rev_cabinet_left_00 ADD 95.5 -> 91.1, measured)
+        return DepthProposal(joint_type, axis, pivot, points, np.zeros(F), cost, static, rival_cost, True)
+    # A slide keeps depth's axis, the front's normal or an edge of the surface it uncovered (see above), also
+    # against the tracks' slide: a drawer's tracks often sit on what it carries, on the walls beside a plain
+    # front or on the arm, a panel's few tracks on the handle and the panel's edge, carrying the camera's drift
+    # along the slide (plain_pri_wardrobe_00 0.3 against 13.8 deg, person_elbow_pri_wardrobe_00 0.3 against
+    # 2.0, mw_window_00 0.05 against 0.3 at dc34b2a; dark_pri_drawer_00's normal 0.8 deg off against its
+    # tracks' 5.1 at f8e389e).
     arrival = replace(coarse_arrival, frames=np.arange(F), p_world=arrived)
     states = depth_states(capture, trajectory, joint_type, axis, pivot, points, np.zeros(1, np.int64), np.zeros(1),
                           np.ones(1, bool), config.depth, arrival=arrival)
@@ -458,28 +458,6 @@ def _hinge_neighbours(normal: FloatArray, config: DepthProposalConfig):
         across = np.cross(normal, axis)
         return ([(_turned(axis, normal, sign * step_deg), pivot) for sign in (1, -1)]
                 + [(axis, pivot + sign * step_m * across) for sign in (1, -1)])
-
-    return neighbours
-
-
-def _slide_neighbours(normal: FloatArray, config: DepthProposalConfig):
-    """The slide direction turned by the k-th of ``config.hinge_refine_steps_deg``: a slide across the
-    front (a drawer) tilted about two directions perpendicular to it; a slide along the front (a
-    sliding door or panel) not at all. A panel slides in its own plane, along the edges of the
-    surface it uncovers (:func:`_front_plane`'s axes), and a plain panel looks the same wherever it
-    stands in that plane but at its edges: depth cannot turn its slide better than those edges.
-    On plain_pri_wardrobe_00 (proposal alone, its twin's poses and hand masks) tilting it out of the
-    plane ended 12.9 deg off (its points carried onto the fixed panel in front, and into the
-    carcass, where depth cannot refute them), turning it within the plane 16.3 deg off at cost
-    0.172, and the rectangle's edge, unturned, 0.3 deg off at cost 0.177."""
-
-    def neighbours(axis: FloatArray, pivot: FloatArray | None, k: int) -> list[tuple[FloatArray, FloatArray | None]]:
-        step = config.hinge_refine_steps_deg[k]
-        if abs(axis @ normal) < np.cos(np.pi / 4):
-            return []
-        first = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
-        first /= np.linalg.norm(first)
-        return [(_turned(axis, about, sign * step), None) for about in (first, np.cross(axis, first)) for sign in (1, -1)]
 
     return neighbours
 
