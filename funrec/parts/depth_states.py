@@ -245,7 +245,9 @@ def _frame_cost(depth_m: FloatArray, K: FloatArray, T_camera_world: FloatArray, 
         u = np.rint(K[0, 0] * q[..., 0] / z + K[0, 2])
         v = np.rint(K[1, 1] * q[..., 1] / z + K[1, 2])
     inside = (z > 0.1) & (u >= 0) & (u < W) & (v >= 0) & (v < H)
-    d = np.where(inside, depth_m[np.where(inside, v, 0).astype(int), np.where(inside, u, 0).astype(int)], 0.0)
+    # One flat gather of pixel v W + u (exact in float64) instead of two masked index arrays; pixel
+    # 0 outside the image, whose reading is never used (``valid`` is False there).
+    d = depth_m.ravel()[np.where(inside, v * W + u, 0.0).astype(np.intp)]
     valid = inside & (d > 0)
     r = d - z
     tau = config.depth_tolerance_m
