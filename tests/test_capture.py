@@ -197,3 +197,31 @@ def test_forked_child_reads_frames_decoded_ahead_in_the_parent(tmp_path: Path) -
         os.waitpid(pid, 0)
         pytest.fail("the forked child hung reading frames the parent had queued for decoding")
     assert os.waitstatus_to_exitcode(status) == 0
+
+
+def test_decoded_files_are_kept_within_budget_shared_with_sub_captures_and_unchanged_by_readers(tmp_path: Path) -> None:
+    import dataclasses
+
+    from funrec.formats.capture import _DecodedFiles
+
+    capture = load_capture(_write_capture(tmp_path / "c", frames=4, hand_masks=True))
+    fresh = load_capture(tmp_path / "c")
+    depth = capture.depth_m(1)
+    depth[:] = -1.0  # a reader may write into what it was handed: the kept file stays as decoded
+    capture.rgb(1)[:] = 0
+    np.testing.assert_array_equal(capture.depth_m(1), fresh._read_depth_m(1))
+    np.testing.assert_array_equal(capture.rgb(1), fresh._read_rgb(1))
+    sub = dataclasses.replace(capture, stems=capture.stems[1:], rgb_paths=capture.rgb_paths[1:],
+                              depth_paths=capture.depth_paths[1:])
+    assert sub._decoded is capture._decoded  # sub-captures share what was decoded
+    (tmp_path / "c" / "depth" / "000001.png").unlink()
+    np.testing.assert_array_equal(sub.depth_m(0), fresh._read_depth_m(1))  # decoded once, not again
+    # Masks are never kept: a run rewrites its detected hand masks under the same path.
+    assert capture.mask("hand", 2).any()
+    write_mask = cv2.imwrite(str(capture.mask_paths["hand"][2]), np.zeros((H, W), np.uint8))
+    assert write_mask and not capture.mask("hand", 2).any()
+    # Within the budget only: room for one depth image keeps the first one read.
+    small = dataclasses.replace(fresh, _decoded=_DecodedFiles(budget_bytes=H * W * 2))
+    for frame in (2, 3):
+        small.depth_m(frame)
+    assert list(small._decoded._images) == [small.depth_paths[2]]

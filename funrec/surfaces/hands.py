@@ -19,7 +19,7 @@ from funrec.formats.capture import Capture
 from funrec.formats.twin import ArticulatedPart
 from funrec.geometry.joints import joint_transforms
 from funrec.geometry.transforms import invert_transform
-from funrec.surfaces.segmentation import EncodedMasks, PartMasks, decode_mask, encode_mask
+from funrec.surfaces.segmentation import EncodedMasks, PartMasks, encode_mask
 from funrec.typed import BoolArray, Float32Array, FloatArray, IntArray, UInt8Array
 
 logger = logging.getLogger(__name__)
@@ -287,18 +287,38 @@ class _Detector:
         R, t = T_ref_frame[:3, :3], T_ref_frame[:3, 3]
         # Row by row on contiguous coordinate rows: 7x faster than einsum over (n, 3) points and,
         # unlike a BLAS product, no threads that compete with other work on a small machine
-        # (ten times slower, measured).
+        # (ten times slower, measured). In place, one flat gather instead of boolean-masked
+        # indexing: half the time of the expression form (~40 % of a detection), the same
+        # arithmetic in the same order, so the same bits.
         x, y, z = p_camera
-        z_ref = R[2, 0] * x + R[2, 1] * y + R[2, 2] * z + t[2]
+        scratch = np.empty_like(x)
+
+        def row(i: int) -> FloatArray:  # R[i, 0] x + R[i, 1] y + R[i, 2] z + t[i], summed left to right
+            out = np.multiply(R[i, 0], x)
+            out += np.multiply(R[i, 1], y, out=scratch)
+            out += np.multiply(R[i, 2], z, out=scratch)
+            out += t[i]
+            return out
+
+        z_ref = row(2)
+        u, v = row(0), row(1)
         with np.errstate(invalid="ignore", divide="ignore"):
-            u = np.rint(self.K[0, 0] * (R[0, 0] * x + R[0, 1] * y + R[0, 2] * z + t[0]) / z_ref + self.K[0, 2])
-            v = np.rint(self.K[1, 1] * (R[1, 0] * x + R[1, 1] * y + R[1, 2] * z + t[1]) / z_ref + self.K[1, 2])
-        inside = (z_ref > self.config.min_range_m) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
-        index = v[inside].astype(np.int64) * w + u[inside].astype(np.int64)
-        seen = np.full(len(z_ref), _NO_DEPTH)
-        seen[inside] = self.min_depth(ref).ravel()[index]
-        exact = np.zeros(len(z_ref))
-        exact[inside] = self.depth(ref).ravel()[index]
+            for image, f, c in ((u, self.K[0, 0], self.K[0, 2]), (v, self.K[1, 1], self.K[1, 2])):
+                image *= f
+                image /= z_ref
+                image += c
+                np.rint(image, out=image)
+        inside = z_ref > self.config.min_range_m
+        inside &= u >= 0
+        inside &= u < w
+        inside &= v >= 0
+        inside &= v < h
+        v *= w  # pixel index v w + u, exact in float64; 0 outside (its reading is replaced)
+        v += u
+        np.copyto(v, 0.0, where=~inside)
+        index = v.astype(np.intp)
+        seen = np.where(inside, self.min_depth(ref).ravel()[index], np.float64(_NO_DEPTH))
+        exact = np.where(inside, self.depth(ref).ravel()[index], np.float64(0.0))
         return z_ref, seen, exact, inside & (seen < _NO_DEPTH)
 
     def _margin(self, z: FloatArray) -> FloatArray:
@@ -410,18 +430,25 @@ class _Detector:
         closed = cv2.morphologyEx(grown.astype(np.uint8), cv2.MORPH_CLOSE, kernel) > 0
         return closed & near  # closing must not bridge onto the scene behind
 
+    def _unpack(self, bits: UInt8Array) -> BoolArray:
+        """(h, w) bool mask from ``np.packbits`` of it."""
+        w, h = self.size
+        return np.unpackbits(bits, count=h * w).reshape(h, w).view(bool)
+
     def run(self, progress: Progress | None) -> HandMasks:
         cfg = self.config
         F = self.F
         bins = cfg.colour_bins
         hist_skin = np.zeros(bins * bins)
         hist_scene = np.zeros(bins * bins)
-        seed_png, static_png, near_png, growable_png = [], [], [], []
+        # Pass 1's masks for pass 2, packed 8 pixels a byte: lossless like PNG at a 30th of its
+        # encoding time (PNG encoding took 8 of the 123 CPU-s of plain_rev_cabinet_right_00).
+        seed_bits, static_bits, near_bits, growable_bits = [], [], [], []
         for frame in range(F):
             seeds, static = self.violations(frame)
             near, growable = self.depth_masks(frame)
-            for store, mask in ((seed_png, seeds), (static_png, static), (near_png, near), (growable_png, growable)):
-                store.append(encode_mask(mask))
+            for store, mask in ((seed_bits, seeds), (static_bits, static), (near_bits, near), (growable_bits, growable)):
+                store.append(np.packbits(mask))
             if seeds.any():
                 chroma, usable = self.chroma_bins(self.capture.rgb(frame))
                 core = cv2.erode(seeds.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
@@ -437,7 +464,7 @@ class _Detector:
         H, W = self.capture.intrinsics.height, self.capture.intrinsics.width
         png = []
         for frame in range(F):
-            mask = self.grow(frame, *(decode_mask(store[frame]) for store in (seed_png, static_png, near_png, growable_png)), skin)
+            mask = self.grow(frame, *(self._unpack(store[frame]) for store in (seed_bits, static_bits, near_bits, growable_bits)), skin)
             if mask.shape != (H, W):
                 mask = cv2.resize(mask.astype(np.float32), (W, H), interpolation=cv2.INTER_LINEAR) > 0.5
             png.append(encode_mask(mask))
