@@ -56,14 +56,8 @@ class PlanConfig:
     """Largest IK residual accepted at the approach's via pose (free space), m."""
     retreat_step: float = 0.01
     """The retreat is solved in steps of this length along the approach, stopping where the IK cannot follow, m."""
-    release_sweep_depth: float = 0.008
-    """The gripper opening on the handle at the end of the path may bring a finger at most this much deeper into
-    the part or the scene (the handle aside) than it lay while holding, m. Measured (kinematic replay, gt18):
-    Spot's hinged jaw swung 12-18 mm into both microwave doors and knocked one 0.11 rad off its target
-    (``plain_rev_microwave_00``); funrec_mm's finger goes 4.7 mm deeper into ``rev_cabinet_left_00``'s door on its
-    release and that plan passes (16 N)."""
     release_sweep_samples: int = 8
-    """Gripper commands from holding to released at which that is measured."""
+    """Gripper commands from holding to released at which a robot's ``gripper.release_sweep`` is checked."""
     min_retreat_clearance: float = 0.01
     """A retreat cut short is kept if it leaves the handle at least this far beyond the fingertips, m."""
     refine_tolerance: float = 0.002

@@ -115,10 +115,11 @@ def whole_body_configurations(
         try:
             # Whether the hand can let go at the end of the path depends on the hand's pose there alone: one IK
             # solve to the last frame tells before the whole path is tracked (a second when it is not reached).
-            q_end, end_pos, end_rot = ik.solve(path[-1], posture[-1], posture[-1], float(states[-1]), grasp.holding)
-            if end_pos <= config.track_position_tolerance and end_rot <= config.track_orientation_tolerance:
-                _require_clear_release(model, ik, task, q_end, float(states[-1]), grasp.holding,
-                                       release_command(robot, grasp.holding, config.grasp), set(handle.tolist()), floor, config)
+            if robot.gripper.release_sweep is not None:
+                q_end, end_pos, end_rot = ik.solve(path[-1], posture[-1], posture[-1], float(states[-1]), grasp.holding)
+                if end_pos <= config.track_position_tolerance and end_rot <= config.track_orientation_tolerance:
+                    _require_clear_release(robot, model, ik, task, q_end, float(states[-1]), grasp.holding,
+                                           release_command(robot, grasp.holding, config.grasp), set(handle.tolist()), floor, config)
             return _from_pregrasp(robot, model, ik, task, grasp, states, placement, target_state, fingertip_depth, config,
                                   unload, flip, path, q_start, q_pre, e_pos, e_rot, posture, set(handle.tolist()))
         except TimeLimitSpent:
@@ -179,7 +180,8 @@ def _from_pregrasp(
     # The retreat only has to take the fingers off the handle: the IK's best effort is kept when it leaves
     # the handle ``min_retreat_clearance`` beyond the fingertips.
     released = release_command(robot, holding, config.grasp)
-    _require_clear_release(model, ik, task, q_path[-1], target_state, holding, released, handle, floor, config)
+    if robot.gripper.release_sweep is not None:
+        _require_clear_release(robot, model, ik, task, q_path[-1], target_state, holding, released, handle, floor, config)
     T_end = ik.grasp_pose(q_path[-1], target_state, released)
     q_retreat = q_path[-1]
     steps = np.arange(1, int(np.ceil(config.retreat_distance / config.retreat_step)) + 1) * config.retreat_step
@@ -210,20 +212,22 @@ def _from_pregrasp(
 
 
 def _require_clear_release(
-    model: mujoco.MjModel, ik: WholeBodyIK, task: ArticulationTask, q_end: FloatArray, target_state: float,
-    holding: float, released: float, handle: set[int], floor: set[int], config: PlanConfig,
+    robot: RobotDescription, model: mujoco.MjModel, ik: WholeBodyIK, task: ArticulationTask, q_end: FloatArray,
+    target_state: float, holding: float, released: float, handle: set[int], floor: set[int], config: PlanConfig,
 ) -> None:
     """Raise if the gripper, opening from ``holding`` to ``released`` on the handle at the end of the path, sweeps
-    a finger more than ``PlanConfig.release_sweep_depth`` deeper into the part or the scene (the handle aside) than
-    it lay while holding: the part is then knocked off its target as the hand lets go. A hinged jaw (Spot's)
+    a finger more than the robot's ``gripper.release_sweep`` deeper into the part or the scene (the handle aside)
+    than it lay while holding: the part is then knocked off its target as the hand lets go. A hinged jaw (Spot's)
     swings towards the part's front on one side of the handle; the other way round (``flip``) it swings clear."""
+    limit = robot.gripper.release_sweep
+    assert limit is not None
     commands = np.linspace(holding, released, config.release_sweep_samples)
     depths, names = release_sweep_depth(model, ik, q_end, target_state, commands, handle, floor)
-    if names is not None and float(depths.max() - depths[0]) > config.release_sweep_depth:
+    if names is not None and float(depths.max() - depths[0]) > limit:
         raise PlanningError(
             f"release of part '{task.part}' at state {target_state:.3f} {task.unit}: the opening gripper sweeps "
             f"{names[0]} {1000 * depths.max():.0f} mm into {names[1]} ({1000 * depths[0]:.0f} mm while holding; "
-            f"{1000 * config.release_sweep_depth:.0f} mm more allowed)"
+            f"{1000 * limit:.0f} mm more allowed)"
         )
 
 

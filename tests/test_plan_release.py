@@ -3,6 +3,7 @@ is planned from where the contacts push it; a release that sweeps a finger into 
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import mujoco
@@ -104,10 +105,11 @@ def _with_wall(robot, gt: Path, plan, gap: float) -> tuple[mujoco.MjModel, Whole
 
 def test_a_release_that_sweeps_a_finger_into_the_scene_is_refused(robot, released) -> None:
     """A wall 1 mm outside the left finger: the planned release (the finger opens 7 mm: 5 mm gap and 2 mm
-    squeeze) brings it at most 6 mm in, within the 8 mm allowed (PlanConfig.release_sweep_depth); opening wide
-    (42.5 mm) brings it over 30 mm in, and the release is refused naming the wall. The hand's own contact with the
-    handle is left out (allowed geoms), as the floor."""
+    squeeze) brings it at most 6 mm in, within 8 mm allowed (a robot file's ``gripper.release_sweep``, Spot's);
+    opening wide (42.5 mm) brings it over 30 mm in, and the release is refused naming the wall. The hand's own
+    contact with the handle is left out (allowed geoms), as the floor."""
     gt, plan = released
+    robot = dataclasses.replace(robot, gripper=dataclasses.replace(robot.gripper, release_sweep=0.008))
     model, ik, q, state = _with_wall(robot, gt, plan, 0.001)
     config = PlanConfig()
     floor = set(floor_geoms(model, np.flatnonzero(~np.isin(model.geom_bodyid, ik.indices.bodies))).tolist())
@@ -118,6 +120,6 @@ def test_a_release_that_sweeps_a_finger_into_the_scene_is_refused(robot, release
     assert 0.004 < depths[1] <= 0.006 + 1e-4
     assert names is not None and names[1] == "wall"
     task = task_from_ground_truth(gt, "part_0", model)
-    _require_clear_release(model, ik, task, q, state, plan.grasp_command, loose, handle, floor, config)
+    _require_clear_release(robot, model, ik, task, q, state, plan.grasp_command, loose, handle, floor, config)
     with pytest.raises(PlanningError, match=r"opening gripper sweeps .* into wall"):
-        _require_clear_release(model, ik, task, q, state, plan.grasp_command, robot.gripper.open, handle, floor, config)
+        _require_clear_release(robot, model, ik, task, q, state, plan.grasp_command, robot.gripper.open, handle, floor, config)
