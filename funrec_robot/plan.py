@@ -449,7 +449,7 @@ def _timed(
         retreat = _slowed(retreat, 1.0 / config.falling_retreat_scale, rc.dt)
     end_state = target_state if handle.final_state is None else handle.final_state
     close_hold, close_cmd = _gripper_move(q_path[0], opening, holding, config)
-    released = release_command(robot, holding, config.grasp)
+    released = solution.get("released", release_command(robot, holding, config.grasp))
     open_hold, open_cmd = _gripper_move(q_path[-1], holding, released, config, config.release_hold_time)
 
     def constant(traj: Trajectory, value: float) -> FloatArray:
@@ -499,6 +499,7 @@ def _provenance(
             "flip": bool(solution["flip"]),
             "tilt_rad": grasp.tilt,
             "opening": grasp.opening,
+            "release_command": solution.get("released"),
             "approach_vias": len(configs["approach"]) - 3,
             "handle_axis_world": None if task.handle_axis_world is None else np.round(task.handle_axis_world, 6).tolist(),
             "approach_world": np.round(task.approach_world, 6).tolist(),

@@ -95,7 +95,7 @@ class GripperDescription:
     release_sweep: float | None = None
     """How much deeper into the part or the scene (the handle aside) the gripper, opening on the handle at the end
     of the path, may bring a finger than it lay while holding, m (``gripper.release_sweep``); None: not checked.
-    A plan over it tries the gripper the other way round, then other grasps and base stops."""
+    The gripper then opens less than ``release_gap`` (``whole_body.clear_release``)."""
 
     def command(self, half_width: float) -> float:
         """The command that leaves ``half_width`` between the grasp centre and each jaw (linear between closed

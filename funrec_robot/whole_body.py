@@ -4,6 +4,8 @@ joint motion collides), the handle path (refined until the joint interpolation s
 
 from __future__ import annotations
 
+import logging
+
 import mujoco
 import numpy as np
 
@@ -33,6 +35,8 @@ from funrec_robot.robot import RobotDescription
 from funrec_robot.scene import floor_geoms, geoms_near, hull_approximated, part_geoms
 from funrec_robot.task import ArticulationTask
 from funrec_robot.trajopt import BasePlacement
+
+log = logging.getLogger(__name__)
 
 
 def _base_q(robot: RobotDescription, pose: FloatArray) -> FloatArray:
@@ -118,14 +122,16 @@ def whole_body_configurations(
             if robot.gripper.release_sweep is not None:
                 q_end, end_pos, end_rot = ik.solve(path[-1], posture[-1], posture[-1], float(states[-1]), grasp.holding)
                 if end_pos <= config.track_position_tolerance and end_rot <= config.track_orientation_tolerance:
-                    _require_clear_release(robot, model, ik, task, q_end, float(states[-1]), grasp.holding,
-                                           release_command(robot, grasp.holding, config.grasp), set(handle.tolist()), floor, config)
+                    clear_release(robot, model, ik, task, q_end, float(states[-1]), grasp.holding,
+                                  release_command(robot, grasp.holding, config.grasp), set(handle.tolist()), floor, config)
             return _from_pregrasp(robot, model, ik, task, grasp, states, placement, target_state, fingertip_depth, config,
                                   unload, flip, path, q_start, q_pre, e_pos, e_rot, posture, set(handle.tolist()))
         except TimeLimitSpent:
             raise
         except PlanningError as exc:  # a gravity overload too: the caller tries other postures if both ways fail
             errors.append(exc)
+    for exc in errors[1:]:
+        log.debug("the other way round: %s", exc)
     raise errors[0]
 
 
@@ -181,7 +187,7 @@ def _from_pregrasp(
     # the handle ``min_retreat_clearance`` beyond the fingertips.
     released = release_command(robot, holding, config.grasp)
     if robot.gripper.release_sweep is not None:
-        _require_clear_release(robot, model, ik, task, q_path[-1], target_state, holding, released, handle, floor, config)
+        released = clear_release(robot, model, ik, task, q_path[-1], target_state, holding, released, handle, floor, config)
     T_end = ik.grasp_pose(q_path[-1], target_state, released)
     q_retreat = q_path[-1]
     steps = np.arange(1, int(np.ceil(config.retreat_distance / config.retreat_step)) + 1) * config.retreat_step
@@ -207,28 +213,41 @@ def _from_pregrasp(
         "configs": {"approach": approach, "path": q_path, "retreat": q_retreat},
         "tracked": tracked,
         "placement": placement,
+        "released": released,
         "tilt": 0.0,
     }
 
 
-def _require_clear_release(
+def clear_release(
     robot: RobotDescription, model: mujoco.MjModel, ik: WholeBodyIK, task: ArticulationTask, q_end: FloatArray,
     target_state: float, holding: float, released: float, handle: set[int], floor: set[int], config: PlanConfig,
-) -> None:
-    """Raise if the gripper, opening from ``holding`` to ``released`` on the handle at the end of the path, sweeps
-    a finger more than the robot's ``gripper.release_sweep`` deeper into the part or the scene (the handle aside)
-    than it lay while holding: the part is then knocked off its target as the hand lets go. A hinged jaw (Spot's)
-    swings towards the part's front on one side of the handle; the other way round (``flip``) it swings clear."""
+) -> float:
+    """The gripper command to let go at: ``released``, or less open where opening that far on the handle at the
+    end of the path would bring a finger more than the robot's ``gripper.release_sweep`` deeper into the part or
+    the scene (the handle aside) than it lay while holding, which knocks the part off its target as the hand lets go.
+    Spot's hinged jaw, opened 7 mm clear of a microwave door's bar, swung 17 mm into the door and knocked it 0.11 rad
+    back; opened 1 mm clear the door stayed (a sliding door's bar wants the full 5 mm to slide off).
+
+    Raises:
+        PlanningError: the fingers cannot even stop squeezing the handle (open ``GraspConfig.grip_squeeze``) within
+            that depth; the gripper the other way round (``flip``) may.
+    """
     limit = robot.gripper.release_sweep
     assert limit is not None
     commands = np.linspace(holding, released, config.release_sweep_samples)
     depths, names = release_sweep_depth(model, ik, q_end, target_state, commands, handle, floor)
-    if names is not None and float(depths.max() - depths[0]) > limit:
+    deeper = depths - depths[0] > limit
+    if not deeper.any():
+        return released
+    last = int(np.argmax(deeper)) - 1  # the last command before the first too deep
+    loose = robot.gripper.command(config.grasp.grip_squeeze) - robot.gripper.closed
+    if last < 0 or abs(commands[last] - holding) < abs(loose):
         raise PlanningError(
             f"release of part '{task.part}' at state {target_state:.3f} {task.unit}: the opening gripper sweeps "
-            f"{names[0]} {1000 * depths.max():.0f} mm into {names[1]} ({1000 * depths[0]:.0f} mm while holding; "
-            f"{1000 * limit:.0f} mm more allowed)"
+            f"{names[0] if names else 'a finger'} {1000 * depths.max():.0f} mm into {names[1] if names else 'the scene'} "
+            f"({1000 * depths[0]:.0f} mm while holding; {1000 * limit:.0f} mm more allowed) before it stops squeezing"
         )
+    return float(commands[last])
 
 
 def _refine_path(

@@ -1,5 +1,5 @@
-"""Where the part rests before the robot arrives, and whether the gripper can let go: a part overlapping the scene
-is planned from where the contacts push it; a release that sweeps a finger into the scene is refused."""
+"""Where the part rests before the robot arrives, and how far the gripper opens to let go: a part overlapping the
+scene is planned from where the contacts push it; a release that would sweep a finger into the scene opens less."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ from funrec_robot.plan import PlanConfig, plan_interaction
 from funrec_robot.scene import bodies_geoms, box_corners, floor_geoms, geom_boxes, part_joint, subtree_bodies
 from funrec_robot.sim_model import build_mujoco_spec
 from funrec_robot.task_sources import task_from_ground_truth
-from funrec_robot.whole_body import _require_clear_release
+from funrec_robot.whole_body import clear_release
 from tests.helpers.robot_scenes import REVOLUTE_CASE, write_gt_scene
 
 DOOR = """<mujoco><option timestep="0.002"/><worldbody>
@@ -103,13 +103,13 @@ def _with_wall(robot, gt: Path, plan, gap: float) -> tuple[mujoco.MjModel, Whole
     return walled, WholeBodyIK(robot, walled, part_joint(walled, plan.part), plan.T_world_grasp_start[None, :3, 3], []), q, state
 
 
-def test_a_release_that_sweeps_a_finger_into_the_scene_is_refused(robot, released) -> None:
-    """A wall 1 mm outside the left finger: the planned release (the finger opens 7 mm: 5 mm gap and 2 mm
-    squeeze) brings it at most 6 mm in, within 8 mm allowed (a robot file's ``gripper.release_sweep``, Spot's);
-    opening wide (42.5 mm) brings it over 30 mm in, and the release is refused naming the wall. The hand's own
+def test_a_release_that_sweeps_a_finger_into_the_scene_opens_less(robot, released) -> None:
+    """A wall 1 mm outside the left finger, and 8 mm allowed (a robot file's ``gripper.release_sweep``, Spot's).
+    The planned release (the finger opens 7 mm: 5 mm gap and 2 mm squeeze) brings it at most 6 mm in: kept.
+    Opening wide (to 42.5 mm, in 7 steps of 5.3 mm) it would go 9.6 mm in at the second step: the release stops at
+    the first. Allowed 0.5 mm, not even the first step (4.3 mm in) is: refused, naming the wall. The hand's own
     contact with the handle is left out (allowed geoms), as the floor."""
     gt, plan = released
-    robot = dataclasses.replace(robot, gripper=dataclasses.replace(robot.gripper, release_sweep=0.008))
     model, ik, q, state = _with_wall(robot, gt, plan, 0.001)
     config = PlanConfig()
     floor = set(floor_geoms(model, np.flatnonzero(~np.isin(model.geom_bodyid, ik.indices.bodies))).tolist())
@@ -120,6 +120,12 @@ def test_a_release_that_sweeps_a_finger_into_the_scene_is_refused(robot, release
     assert 0.004 < depths[1] <= 0.006 + 1e-4
     assert names is not None and names[1] == "wall"
     task = task_from_ground_truth(gt, "part_0", model)
-    _require_clear_release(robot, model, ik, task, q, state, plan.grasp_command, loose, handle, floor, config)
+    spot_like = dataclasses.replace(robot, gripper=dataclasses.replace(robot.gripper, release_sweep=0.008))
+    assert clear_release(spot_like, model, ik, task, q, state, plan.grasp_command, loose, handle, floor, config) == loose
+    wide = robot.gripper.open
+    first_step = plan.grasp_command + (wide - plan.grasp_command) / (config.release_sweep_samples - 1)
+    capped = clear_release(spot_like, model, ik, task, q, state, plan.grasp_command, wide, handle, floor, config)
+    assert capped == pytest.approx(first_step, abs=1e-12)
+    tight = dataclasses.replace(robot, gripper=dataclasses.replace(robot.gripper, release_sweep=0.0005))
     with pytest.raises(PlanningError, match=r"opening gripper sweeps .* into wall"):
-        _require_clear_release(robot, model, ik, task, q, state, plan.grasp_command, robot.gripper.open, handle, floor, config)
+        clear_release(tight, model, ik, task, q, state, plan.grasp_command, wide, handle, floor, config)

@@ -124,7 +124,8 @@ def test_a_thick_bar_is_taken_further_out_on_the_pads_clear_of_the_palm() -> Non
     """Meta-World's drawer bar: 51 mm thick, 18 cm in front of the drawer. Taken where the fingertips keep their
     12 mm off the front (depth 0: the front is far), it reaches 28.5 mm (its radius and the 3 mm pad margin) back
     into the palm, which ends 3 mm ahead of the grasp frame; it is taken out to the first 1 mm step clear of it,
-    0.032 m, within the pads (0.036 m: their 0.039 m less the margin). A 71 mm bar would need 0.042 m: refused."""
+    0.032 m, within the pads (0.036 m: their 0.039 m less the margin), when asked to (``graspable_tilts`` asks
+    only when no tilt takes the bar the usual way). A 71 mm bar would need 0.042 m: refused."""
     from dataclasses import replace
 
     from funrec_robot.grasp import grasp_depth
@@ -132,8 +133,10 @@ def test_a_thick_bar_is_taken_further_out_on_the_pads_clear_of_the_palm() -> Non
     drawer = replace(DOOR, joint_type="prismatic", axis_world=np.array([0.0, -1.0, 0.0]), pivot_world=None,
                      state_range=(0.0, 0.4), surface_offset=0.18, handle_width=0.051)
     geometry, config = _one_jaw_geometry(), GraspConfig()
-    assert grasp_depth(drawer, geometry, 0.0, 0.0, config) == pytest.approx(0.032, abs=1e-9)
-    assert grasp_depth(replace(drawer, handle_width=0.071), geometry, 0.0, 0.0, config) is None
+    assert grasp_depth(drawer, geometry, 0.0, 0.0, config) is None  # the usual grasp only
+    assert grasp_depth(drawer, geometry, 0.0, 0.0, config, clear_palm=True) == pytest.approx(0.032, abs=1e-9)
+    assert grasp_depth(replace(drawer, handle_width=0.071), geometry, 0.0, 0.0, config, clear_palm=True) is None
     # A thin bar near the front is taken where the fingertips keep their clearance, as before: 0.039 - 0.031 +
     # 0.012 = 0.02 m, and its 10.5 mm reach back stays clear of the palm.
-    assert grasp_depth(replace(drawer, surface_offset=0.031, handle_width=0.015), geometry, 0.0, 0.0, config) == pytest.approx(0.02, abs=1e-9)
+    thin = replace(drawer, surface_offset=0.031, handle_width=0.015)
+    assert grasp_depth(thin, geometry, 0.0, 0.0, config, clear_palm=True) == pytest.approx(0.02, abs=1e-9)
