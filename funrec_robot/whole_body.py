@@ -112,18 +112,10 @@ def whole_body_configurations(
         scored.append((score, flip, path, q_pre, e_pos, e_rot))
     scored.sort(key=lambda item: item[0])
     errors: list[PlanningError] = []
-    floor = set(floor_geoms(model, np.flatnonzero(~np.isin(model.geom_bodyid, ik.indices.bodies))).tolist())
     for rank, (_, flip, path, q_pre, e_pos, e_rot) in enumerate(scored):
         if rank > 0 and (e_pos > config.track_position_tolerance or e_rot > config.track_orientation_tolerance):
             break  # the other way round does not even reach the pre-grasp pose
         try:
-            # Whether the hand can let go at the end of the path depends on the hand's pose there alone: one IK
-            # solve to the last frame tells before the whole path is tracked (a second when it is not reached).
-            if robot.gripper.release_sweep is not None:
-                q_end, end_pos, end_rot = ik.solve(path[-1], posture[-1], posture[-1], float(states[-1]), grasp.holding)
-                if end_pos <= config.track_position_tolerance and end_rot <= config.track_orientation_tolerance:
-                    clear_release(robot, model, ik, task, q_end, float(states[-1]), grasp.holding,
-                                  release_command(robot, grasp.holding, config.grasp), set(handle.tolist()), floor, config)
             return _from_pregrasp(robot, model, ik, task, grasp, states, placement, target_state, fingertip_depth, config,
                                   unload, flip, path, q_start, q_pre, e_pos, e_rot, posture, set(handle.tolist()))
         except TimeLimitSpent:
