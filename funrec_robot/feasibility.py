@@ -131,6 +131,45 @@ def first_collision(
     return None
 
 
+def release_sweep_depth(
+    model: mujoco.MjModel,
+    ik: WholeBodyIK,
+    q: FloatArray,
+    part_state: float,
+    commands: FloatArray,
+    allowed: set[int],
+    floor: set[int],
+) -> tuple[FloatArray, tuple[str, str] | None]:
+    """How deep the robot lies in the scene (other than the ``allowed`` geoms, the handle, and the floor) at
+    planning-joint positions ``q`` with the fingers at each of ``commands`` (kinematic; the gripper opening on
+    the handle at the end of the path), m.
+
+    Returns:
+        (K,) deepest penetration at each command (0 where nothing is touched), and the (robot geom, scene geom)
+        of the deepest of all; None if nothing is touched.
+    """
+    data = mujoco.MjData(model)
+    robot_geoms = set(bodies_geoms(model, ik.indices.bodies).tolist())
+    depths, deepest, names = [], 0.0, None
+    for fingers in commands:
+        data.qpos[:] = ik.full_q(q, part_state, float(fingers))
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_collision(model, data)
+        depth = 0.0
+        for c in data.contact[: data.ncon]:
+            g1, g2 = int(c.geom1), int(c.geom2)
+            if (g1 in robot_geoms) == (g2 in robot_geoms):
+                continue
+            r, other = (g1, g2) if g1 in robot_geoms else (g2, g1)
+            if other in floor or other in allowed or c.dist >= 0.0:
+                continue
+            depth = max(depth, -float(c.dist))
+            if -float(c.dist) > deepest:
+                deepest, names = -float(c.dist), (model.geom(r).name, model.geom(other).name)
+        depths.append(depth)
+    return np.array(depths), names
+
+
 def kinematic_collisions(
     robot: RobotDescription, model: mujoco.MjModel, plan: Plan, every: int = 5, allowed_radius: float = 0.06
 ) -> list[tuple[float, str, str]]:
@@ -175,6 +214,30 @@ def kinematic_collisions(
     return out
 
 
+def resting_state(model: mujoco.MjModel, joint: int, state: float, duration: float, settled_speed: float) -> float:
+    """Where a scene joint's part, put at ``state`` with the rest of the scene at its reference, comes to rest
+    under gravity and its contacts with the scene (the robot collides with nothing here), rad or m.
+
+    A part that overlaps the rest of the scene at ``state`` (a true scene's microwave door sunk 6.9 mm into the
+    counter below it) is pushed out by MuJoCo's contact solver as soon as the simulation starts: the door stood
+    0.049 rad open before the hand arrived and the jaw struck its front. Where it goes depends on the solver, so it
+    is simulated (``mj_step``), for up to ``duration`` s, stopping once the part moves slower than
+    ``settled_speed`` (rad/s or m/s) after the first 0.1 s.
+    """
+    sim = mujoco.MjModel.__copy__(model)
+    robot = bodies_geoms(sim, robot_bodies(sim))
+    sim.geom_contype[robot] = 0
+    sim.geom_conaffinity[robot] = 0
+    data = mujoco.MjData(sim)
+    qadr, dof = int(sim.jnt_qposadr[joint]), int(sim.jnt_dofadr[joint])
+    data.qpos[qadr] = state
+    for step in range(int(np.ceil(duration / sim.opt.timestep))):
+        mujoco.mj_step(sim, data)
+        if step * sim.opt.timestep >= 0.1 and abs(float(data.qvel[dof])) < settled_speed:
+            break
+    return float(data.qpos[qadr])
+
+
 def joint_loads(model: mujoco.MjModel, joint: int, states: FloatArray) -> FloatArray:
     """(N,) generalised force that holding a scene joint's part still at each state takes against gravity and
     the joint's spring (minus what they exert on it; the rest of the scene at its reference), N m or N."""
@@ -217,5 +280,7 @@ __all__ = [
     "gravity_overload",
     "joint_loads",
     "kinematic_collisions",
+    "release_sweep_depth",
     "resting_force",
+    "resting_state",
 ]

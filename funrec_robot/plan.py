@@ -27,6 +27,7 @@ from funrec_robot.feasibility import (
     falls_to,
     first_blocked_state,
     resting_force,
+    resting_state,
 )
 from funrec_robot.ghosts import part_ghosts, range_states, without_geoms
 from funrec_robot.grasp import grasp_candidates, graspable_tilts, release_command
@@ -402,6 +403,7 @@ def _search(
         except TimeLimitSpent:
             raise
         except PlanningError as exc:
+            log.debug("part '%s', %d base stop(s), grasp %d: %s", task.part, bases, rank, exc)
             errors.append((1, exc))
             continue
     if not errors:
@@ -447,7 +449,7 @@ def _timed(
         retreat = _slowed(retreat, 1.0 / config.falling_retreat_scale, rc.dt)
     end_state = target_state if handle.final_state is None else handle.final_state
     close_hold, close_cmd = _gripper_move(q_path[0], opening, holding, config)
-    released = release_command(robot, holding, config.grasp)
+    released = solution.get("released", release_command(robot, holding, config.grasp))
     open_hold, open_cmd = _gripper_move(q_path[-1], holding, released, config, config.release_hold_time)
 
     def constant(traj: Trajectory, value: float) -> FloatArray:
@@ -497,6 +499,7 @@ def _provenance(
             "flip": bool(solution["flip"]),
             "tilt_rad": grasp.tilt,
             "opening": grasp.opening,
+            "release_command": solution.get("released"),
             "approach_vias": len(configs["approach"]) - 3,
             "handle_axis_world": None if task.handle_axis_world is None else np.round(task.handle_axis_world, 6).tolist(),
             "approach_world": np.round(task.approach_world, 6).tolist(),
@@ -575,6 +578,16 @@ def _plan_interaction(robot: RobotDescription, scene_xml: str | Path, task: Arti
         log.info("part '%s': %d static geom(s) lie inside the part within its range, not obstacles: %s",
                  task.part, len(ghost_names), ", ".join(ghost_names))
         model = without_geoms(model, ghosts)
+    settled = None
+    if start is None:
+        # The part is planned from where it rests in the scene: a part overlapping the scene at its recorded state
+        # is pushed out by the contacts before the robot arrives (the check starts it there too).
+        rest = resting_state(model, joint, task.state_current, config.settle_time, config.settle_speed)
+        tolerance = config.settle_tolerance_rad if task.joint_type == "revolute" else config.settle_tolerance_m
+        if abs(rest - task.state_current) > tolerance:
+            log.warning("part '%s' does not rest at %.4f %s in the scene: it settles at %.4f; planning from there",
+                        task.part, task.state_current, task.unit, rest)
+            start, settled = rest, {"from": task.state_current, "to": rest}
     if geometry.lift_range is not None:  # a torso or mast starts at the handle's height; the IK moves it on
         robot = lifted(robot, geometry, handle_height(task), config.ik.limit_margin)
         geometry = measure_robot(robot)
@@ -618,7 +631,8 @@ def _plan_interaction(robot: RobotDescription, scene_xml: str | Path, task: Arti
         p_world_grasp_target=path[-1, :3, 3] + grasp.depth * path[-1, :3, 2],
         grasp_free_axis=grasp_free_axis(task),
         base_poses=placement.poses,
-        provenance=_provenance(robot, scene_xml, task, target, handle, solution, timings, cpu_started) | {"ghost_geoms": ghost_names},
+        provenance=_provenance(robot, scene_xml, task, target, handle, solution, timings, cpu_started)
+        | {"ghost_geoms": ghost_names, "start_settled": settled},
         release_from_grip=task.handle_width is None,
     )
 

@@ -56,6 +56,8 @@ class PlanConfig:
     """Largest IK residual accepted at the approach's via pose (free space), m."""
     retreat_step: float = 0.01
     """The retreat is solved in steps of this length along the approach, stopping where the IK cannot follow, m."""
+    release_sweep_samples: int = 8
+    """Gripper commands from holding to released at which a robot's ``gripper.release_sweep`` is checked."""
     min_retreat_clearance: float = 0.01
     """A retreat cut short is kept if it leaves the handle at least this far beyond the fingertips, m."""
     refine_tolerance: float = 0.002
@@ -90,6 +92,17 @@ class PlanConfig:
     """Hard CPU-time limit of the whole plan, s: every stage (handle path, base placement, whole-body IK, timing)
     checks it and the plan fails, naming the stage, once it is spent (``time_budget`` only stops new attempts;
     the largest plans of the robot bench take under 7 s)."""
+    settle_time: float = 1.0
+    """Longest simulated time over which the planner lets the part come to rest in the scene before planning
+    from it (``feasibility.resting_state``; gt18's one such part, a door pushed out of the counter, rests in
+    0.4 s), s."""
+    settle_speed: float = 1e-3
+    """The part is at rest once it moves slower than this, rad/s or m/s."""
+    settle_tolerance_rad: float = float(np.deg2rad(0.5))
+    """A revolute part that comes to rest further than this from its recorded state is planned from where it
+    rests, rad: 0.5 deg moves a handle 0.35 m from the hinge by 3 mm, within the IK's 5 mm."""
+    settle_tolerance_m: float = 0.002
+    """The same for a prismatic part, m."""
     footprint_radius: float = 2.5
     """Furniture within this distance of the handle path enters base placement, m."""
     falling_retreat_scale: float = 0.2

@@ -92,6 +92,10 @@ class GripperDescription:
     release_gap: float | None = None
     """On letting go each finger opens this far clear of the handle, m (``gripper.release_gap``); None: the
     planner's ``GraspConfig.release_gap``. An arm that tracks its retreat loosely wants more room."""
+    release_sweep: float | None = None
+    """How much deeper into the part or the scene (the handle aside) the gripper, opening on the handle at the end
+    of the path, may bring a finger than it lay while holding, m (``gripper.release_sweep``); None: not checked.
+    The gripper then opens less than ``release_gap`` (``whole_body.clear_release``)."""
 
     def command(self, half_width: float) -> float:
         """The command that leaves ``half_width`` between the grasp centre and each jaw (linear between closed
@@ -364,7 +368,7 @@ def _gripper(facts: ModelFacts) -> GripperDescription:
     forces = [file.effort_limits[n] for n in file.gripper_joints if n in file.effort_limits]
     return GripperDescription(file.gripper_joints, file.gripper_actuator, file.gripper_open, file.gripper_closed,
                               file.gripper_extra_actuators, file.gripper_open_width, min(forces) if forces else None,
-                              file.gripper_release_gap)
+                              file.gripper_release_gap, file.gripper_release_sweep)
 
 
 def _servos(facts: ModelFacts) -> dict[str, ServoGains]:

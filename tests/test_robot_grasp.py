@@ -4,6 +4,7 @@ the door towards the hinge, about the contact point, only over the last part of 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
 from funrec_robot.grasp import GraspConfig, handle_frames
@@ -99,3 +100,43 @@ def test_measure_handle_tells_a_knob_from_a_bar_and_centres_a_knob() -> None:
     assert shape.p_centre is not None and np.linalg.norm(shape.p_centre - (centre + [0.0, contact[1] - centre[1], 0.0])) < 0.003
     assert not measure_handle(np.vstack([front, bar]), contact, approach, axis).is_knob
     assert measure_handle(front, contact, approach, axis).length is None  # no handle proud of the front
+
+
+def _one_jaw_geometry():
+    """A hand like Spot's as grasping sees it: finger boxes from 11 cm behind the grasp frame to 3.9 cm ahead of
+    it, 7 cm apart, and a palm box (the wrist housing) up to 3 mm ahead of the grasp frame."""
+    from funrec_robot.robot_geometry import RobotGeometry
+    from funrec_robot.scene import box_corners
+
+    def corners(low, high):
+        centre, half = (np.array(low) + high) / 2.0, (np.array(high) - low) / 2.0
+        return box_corners(centre[None], np.eye(3)[None], half[None]).reshape(-1, 3)
+
+    fingers = np.vstack([corners([-0.01, 0.035, -0.11], [0.01, 0.045, 0.039]), corners([-0.01, -0.045, -0.11], [0.01, -0.035, 0.039])])
+    return RobotGeometry(
+        p_base_shoulder=np.array([0.3, 0.0, 0.65]), wrist_to_grasp=0.2, reach=0.75, base_circles=(), arm_circles=(),
+        fingertip_depth=0.039, finger_depth_range=(-0.11, 0.039), finger_corners=fingers,
+        palm_corners=corners([-0.04, -0.06, -0.18], [0.04, 0.1, 0.003]),
+    )
+
+
+def test_a_thick_bar_is_taken_further_out_on_the_pads_clear_of_the_palm() -> None:
+    """Meta-World's drawer bar: 51 mm thick, 18 cm in front of the drawer. Taken where the fingertips keep their
+    12 mm off the front (depth 0: the front is far), it reaches 28.5 mm (its radius and the 3 mm pad margin) back
+    into the palm, which ends 3 mm ahead of the grasp frame; it is taken out to the first 1 mm step clear of it,
+    0.032 m, within the pads (0.036 m: their 0.039 m less the margin), when asked to (``graspable_tilts`` asks
+    only when no tilt takes the bar the usual way). A 71 mm bar would need 0.042 m: refused."""
+    from dataclasses import replace
+
+    from funrec_robot.grasp import grasp_depth
+
+    drawer = replace(DOOR, joint_type="prismatic", axis_world=np.array([0.0, -1.0, 0.0]), pivot_world=None,
+                     state_range=(0.0, 0.4), surface_offset=0.18, handle_width=0.051)
+    geometry, config = _one_jaw_geometry(), GraspConfig()
+    assert grasp_depth(drawer, geometry, 0.0, 0.0, config) is None  # the usual grasp only
+    assert grasp_depth(drawer, geometry, 0.0, 0.0, config, clear_palm=True) == pytest.approx(0.032, abs=1e-9)
+    assert grasp_depth(replace(drawer, handle_width=0.071), geometry, 0.0, 0.0, config, clear_palm=True) is None
+    # A thin bar near the front is taken where the fingertips keep their clearance, as before: 0.039 - 0.031 +
+    # 0.012 = 0.02 m, and its 10.5 mm reach back stays clear of the palm.
+    thin = replace(drawer, surface_offset=0.031, handle_width=0.015)
+    assert grasp_depth(thin, geometry, 0.0, 0.0, config, clear_palm=True) == pytest.approx(0.02, abs=1e-9)
