@@ -103,6 +103,21 @@ def first_blocked_state(
     return None
 
 
+def _robot_scene_contacts(
+    model: mujoco.MjModel, data: mujoco.MjData, robot_geoms: set[int], allowed: set[int], floor: set[int]
+):
+    """(robot geom, scene geom, distance) of each contact ``mj_collision`` left in ``data`` between the robot and
+    the scene, other than the ``allowed`` geoms and the floor."""
+    for c in data.contact[: data.ncon]:
+        g1, g2 = int(c.geom1), int(c.geom2)
+        if (g1 in robot_geoms) == (g2 in robot_geoms):
+            continue
+        r, other = (g1, g2) if g1 in robot_geoms else (g2, g1)
+        if other in floor or other in allowed:
+            continue
+        yield r, other, float(c.dist)
+
+
 def first_collision(
     model: mujoco.MjModel,
     ik: WholeBodyIK,
@@ -120,13 +135,7 @@ def first_collision(
         data.qpos[:] = ik.full_q(qk, part_state, fingers)
         mujoco.mj_kinematics(model, data)
         mujoco.mj_collision(model, data)
-        for c in data.contact[: data.ncon]:
-            g1, g2 = int(c.geom1), int(c.geom2)
-            if (g1 in robot_geoms) == (g2 in robot_geoms):
-                continue
-            r, other = (g1, g2) if g1 in robot_geoms else (g2, g1)
-            if other in floor or other in allowed:
-                continue
+        for r, other, _ in _robot_scene_contacts(model, data, robot_geoms, allowed, floor):
             return model.geom(r).name, model.geom(other).name
     return None
 
@@ -156,16 +165,12 @@ def release_sweep_depth(
         mujoco.mj_kinematics(model, data)
         mujoco.mj_collision(model, data)
         depth = 0.0
-        for c in data.contact[: data.ncon]:
-            g1, g2 = int(c.geom1), int(c.geom2)
-            if (g1 in robot_geoms) == (g2 in robot_geoms):
+        for r, other, dist in _robot_scene_contacts(model, data, robot_geoms, allowed, floor):
+            if dist >= 0.0:
                 continue
-            r, other = (g1, g2) if g1 in robot_geoms else (g2, g1)
-            if other in floor or other in allowed or c.dist >= 0.0:
-                continue
-            depth = max(depth, -float(c.dist))
-            if -float(c.dist) > deepest:
-                deepest, names = -float(c.dist), (model.geom(r).name, model.geom(other).name)
+            depth = max(depth, -dist)
+            if -dist > deepest:
+                deepest, names = -dist, (model.geom(r).name, model.geom(other).name)
         depths.append(depth)
     return np.array(depths), names
 

@@ -111,14 +111,15 @@ def visible_offset_px(gray: UInt8Array, uv: FloatArray, uv_predicted: FloatArray
     Args:
         gray: (H, W) uint8 image in which ``uv`` was tracked.
         uv: (N, 2) tracked pixel positions.
-        uv_predicted: (N, 2) where a pose puts the same points.
+        uv_predicted: (..., N, 2) where one or more poses put the same points (the patches' structure is
+            computed once for all of them).
         window_px: side of the square patch, pixels (the KLT window).
 
     Returns:
-        (N,) visible offsets, pixels.
+        (..., N) visible offsets, pixels.
     """
     if len(uv) == 0:
-        return np.zeros(0)
+        return np.zeros(np.shape(uv_predicted)[:-1])
     g = gray.astype(np.float32)
     gx = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=3)
     gy = cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=3)
@@ -130,7 +131,7 @@ def visible_offset_px(gray: UInt8Array, uv: FloatArray, uv_predicted: FloatArray
                for product in (gx * gx, gx * gy, gy * gy))
     lambda_max = 0.5 * (a + c) + np.sqrt(0.25 * (a - c) ** 2 + b ** 2)
     d = np.asarray(uv, dtype=np.float64) - uv_predicted
-    seen = a * d[:, 0] ** 2 + 2.0 * b * d[:, 0] * d[:, 1] + c * d[:, 1] ** 2
+    seen = a * d[..., 0] ** 2 + 2.0 * b * d[..., 0] * d[..., 1] + c * d[..., 1] ** 2
     return np.sqrt(np.maximum(seen, 0.0) / np.maximum(lambda_max, 1e-9))
 
 

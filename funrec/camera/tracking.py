@@ -277,11 +277,10 @@ def _corners_refute(T_keyframe_depth: FloatArray, T_keyframe_features: FloatArra
     fit's pose worse than their own: the median of their visible offsets from where each pose
     puts them, see ``TrackingConfig.depth_wins_unseen_slides``."""
 
-    def median_offset(T_keyframe_camera: FloatArray) -> float:
-        uv_pose, _ = project(transform_points(invert_transform(T_keyframe_camera), p_keyframe), K)
-        return float(np.median(visible_offset_px(gray, uv, uv_pose, config.klt_window_px)))
-
-    return median_offset(T_keyframe_depth) > median_offset(T_keyframe_features)
+    uv_poses = np.stack([project(transform_points(invert_transform(T), p_keyframe), K)[0]
+                         for T in (T_keyframe_depth, T_keyframe_features)])
+    offset_depth, offset_features = np.median(visible_offset_px(gray, uv, uv_poses, config.klt_window_px), axis=1)
+    return bool(offset_depth > offset_features)
 
 
 def _agree(T_a: FloatArray, T_b: FloatArray, config: TrackingConfig) -> bool:
