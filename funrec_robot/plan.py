@@ -174,12 +174,12 @@ def _hold(q: FloatArray, seconds: float, dt: float) -> Trajectory:
 
 
 def _gripper_move(
-    q: FloatArray, start: float, end: float, config: PlanConfig, hold_before: float = 0.0
+    q: FloatArray, start: float, end: float, config: PlanConfig, hold_before: float = 0.0, duration: float | None = None
 ) -> tuple[Trajectory, FloatArray]:
     """The robot holding still while the gripper command waits ``hold_before``, goes from start to end
-    (ruckig, 1 DoF), then settles."""
+    (ruckig, 1 DoF) in about ``duration`` (default ``config.gripper_time``), then settles."""
     span = abs(end - start)
-    v = max(span, 1e-6) / (0.6 * config.gripper_time)
+    v = max(span, 1e-6) / (0.6 * (config.gripper_time if duration is None else duration))
     command = point_to_point([start], [end], [v], [4.0 * v], config.retime)
     settle = int(round(config.grasp_settle_time / config.retime.dt))
     wait = int(round(hold_before / config.retime.dt))
@@ -443,14 +443,20 @@ def _timed(
         actuate = _slowed(actuate, float(task.demo_times[-1] - task.demo_times[0]) / actuate.duration, rc.dt)
     q_path = configs["path"]
     check_time_limit("timing (retreat)")
-    retreat = point_to_point(q_path[-1], configs["retreat"], v, a, rc)
+    retreat_path = configs.get("retreat_path")
+    if retreat_path is not None and len(retreat_path) >= 3:
+        # Along the IK's steps straight back from the handle, as the handle path is timed.
+        retreat = retime_path(retreat_path, v, a, rc)
+    else:
+        retreat = point_to_point(q_path[-1], configs["retreat"], v, a, rc)
     if handle.final_state is not None:
         # The released part rests on the open fingers until they have slid out from under it.
         retreat = _slowed(retreat, 1.0 / config.falling_retreat_scale, rc.dt)
     end_state = target_state if handle.final_state is None else handle.final_state
     close_hold, close_cmd = _gripper_move(q_path[0], opening, holding, config)
     released = solution.get("released", release_command(robot, holding, config.grasp))
-    open_hold, open_cmd = _gripper_move(q_path[-1], holding, released, config, config.release_hold_time)
+    open_hold, open_cmd = _gripper_move(q_path[-1], holding, released, config, config.release_hold_time,
+                                        robot.gripper.release_time)
 
     def constant(traj: Trajectory, value: float) -> FloatArray:
         return np.full(len(traj.t), value)
