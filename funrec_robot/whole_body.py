@@ -39,6 +39,11 @@ from funrec_robot.trajopt import BasePlacement
 log = logging.getLogger(__name__)
 
 
+class RetreatTooShort(PlanningError):
+    """The handle path is planned, but the arm cannot back the gripper off the handle at its end: base placement
+    left the arm no room along the approach there (``plan._search`` then places the base again with room for it)."""
+
+
 def _base_q(robot: RobotDescription, pose: FloatArray) -> FloatArray:
     """Base joint positions (robot.base_motions order) for a base pose (x, y, yaw)."""
     return np.array([pose[{"x": 0, "y": 1, "yaw": 2}[m]] for m in robot.base_motions])
@@ -200,7 +205,7 @@ def _from_pregrasp(
     backed = float((T_end[:3, 3] - T_back[:3, 3]) @ T_end[:3, 2])
     needed = max(fingertip_depth - depth, 0.0) + config.min_retreat_clearance
     if backed < needed:
-        raise PlanningError(
+        raise RetreatTooShort(
             f"whole-body IK: retreat from part '{task.part}' at state {target_state:.3f} {task.unit} backs the gripper "
             f"off only {1000 * backed:.0f} mm ({1000 * needed:.0f} mm needed to clear the handle)"
         )
