@@ -73,6 +73,14 @@ def gravity_overload(
     return None
 
 
+def _geom_mask(model: mujoco.MjModel, *geoms: Iterable[int]) -> BoolArray:
+    """(ngeom,) True for the geoms in any of ``geoms``."""
+    mask = np.zeros(model.ngeom, dtype=bool)
+    for group in geoms:
+        mask[np.fromiter(group, dtype=np.int64)] = True
+    return mask
+
+
 def first_blocked_state(
     model: mujoco.MjModel, joint: int, start: float, target: float, step: float
 ) -> tuple[float, str] | None:
@@ -80,8 +88,8 @@ def first_blocked_state(
     penetrates the rest of the scene (not counting contacts it already has at the start), and the geom it
     meets; None if it moves freely."""
     states = np.linspace(start, target, max(2, int(np.ceil(abs(target - start) / step)) + 1))
-    part = set(part_geoms(model, joint).tolist())
-    others = set(np.flatnonzero(np.isin(model.geom_bodyid, robot_bodies(model), invert=True)).tolist()) - part
+    part = _geom_mask(model, part_geoms(model, joint))
+    others = np.isin(model.geom_bodyid, robot_bodies(model), invert=True) & ~part
     data = mujoco.MjData(model)
     resting: set[tuple[int, int]] = set()
     for k, state in enumerate(states):
@@ -90,27 +98,18 @@ def first_blocked_state(
         data.qpos[model.jnt_qposadr[joint]] = state
         mujoco.mj_kinematics(model, data)
         mujoco.mj_collision(model, data)
-        pairs = {
-            (int(c.geom1), int(c.geom2))
-            for c in data.contact[: data.ncon]
-            if ((c.geom1 in part and c.geom2 in others) or (c.geom2 in part and c.geom1 in others)) and c.dist < 0.0
-        }
+        # From MuJoCo's contact arrays at once (looping over its contact structs took a tenth of a plan).
+        geom = data.contact.geom[: data.ncon]
+        hit = ((part[geom[:, 0]] & others[geom[:, 1]]) | (part[geom[:, 1]] & others[geom[:, 0]])) & (data.contact.dist[: data.ncon] < 0.0)
+        pairs = {(int(g1), int(g2)) for g1, g2 in geom[hit]}
         if k == 0:
             resting = pairs
             continue
         new = pairs - resting
         if new:
             g1, g2 = next(iter(new))
-            return float(state), model.geom(g2 if g1 in part else g1).name
+            return float(state), model.geom(g2 if part[g1] else g1).name
     return None
-
-
-def _geom_mask(model: mujoco.MjModel, *geoms: Iterable[int]) -> BoolArray:
-    """(ngeom,) True for the geoms in any of ``geoms``."""
-    mask = np.zeros(model.ngeom, dtype=bool)
-    for group in geoms:
-        mask[np.fromiter(group, dtype=np.int64)] = True
-    return mask
 
 
 def _robot_scene_contacts(data: mujoco.MjData, robot: BoolArray, ignored: BoolArray):
