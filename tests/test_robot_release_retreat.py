@@ -25,6 +25,13 @@ ROBOTS = Path(__file__).resolve().parents[1] / "robots"
 MODELS = Path(os.environ.get(MODELS_ENV, Path(__file__).resolve().parents[2] / "shared" / "robots"))
 
 
+def _drawer_scene(robot, out_dir: Path) -> tuple[Path, object, object]:
+    """The bench's drawer (gt folder), the robot in its scene (model) and its task."""
+    gt = write_gt_scene(PRISMATIC_CASE, out_dir)
+    model = build_mujoco_model(robot, gt / "scene.xml")
+    return gt, model, task_from_ground_truth(gt, "part_0", model)
+
+
 @pytest.fixture(scope="module")
 def robot():
     return load_robot(default_robot_path())
@@ -32,10 +39,7 @@ def robot():
 
 @pytest.fixture(scope="module")
 def drawer(robot, tmp_path_factory):
-    gt = write_gt_scene(PRISMATIC_CASE, tmp_path_factory.mktemp("retreat"))
-    model = build_mujoco_model(robot, gt / "scene.xml")
-    task = task_from_ground_truth(gt, "part_0", model)
-    return gt, model, task
+    return _drawer_scene(robot, tmp_path_factory.mktemp("retreat"))
 
 
 @pytest.fixture(scope="module")
@@ -72,9 +76,8 @@ def test_the_retreat_backs_straight_off_the_handle(name: str, tmp_path: Path, mo
             pytest.skip(f"robot models not found in {MODELS}")
         monkeypatch.setenv(MODELS_ENV, str(MODELS))
     robot = load_robot(ROBOTS / f"{name}.yaml")
-    gt = write_gt_scene(PRISMATIC_CASE, tmp_path)
-    model = build_mujoco_model(robot, gt / "scene.xml")
-    plan = plan_interaction(robot, gt / "scene.xml", task_from_ground_truth(gt, "part_0", model), "open", model=model)
+    gt, model, task = _drawer_scene(robot, tmp_path)
+    plan = plan_interaction(robot, gt / "scene.xml", task, "open", model=model)
     along, sideways = _retreat(robot, model, plan)
     assert along.max() > 0.02
     assert sideways.max() < 0.001
