@@ -422,8 +422,8 @@ def _search(
                 # This stop and every later one placed with the retreat's end in reach: a telescoping arm drawn in to
                 # the end of a drawer's pull cannot draw in further (Stretch 3 on mw_drawer_00 backed off 20 of 54 mm;
                 # placed so, it planned from 3 stops).
-                pending = [(bases, rank, unload, None, True)] + [(b, r, u, None if p is None else p, p is None or m)
-                                                                 for b, r, u, p, m in pending]
+                # (A placement kept for a retry, unloading the arm, stays as it is.)
+                pending = [(bases, rank, unload, None, True)] + [(b, r, u, p, m or p is None) for b, r, u, p, m in pending]
             continue
     if not errors:
         raise PlanningError(f"part '{task.part}': planning time budget exhausted")
