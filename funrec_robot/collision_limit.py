@@ -45,10 +45,14 @@ class BoxedCollisionLimit(mink.CollisionAvoidanceLimit):
         centre = xpos + np.einsum("kij,kj->ki", R, self._box_centre)
         half = np.einsum("kij,kj->ki", np.abs(R), self._box_half)
         radius = self._rbound[:, None]
-        low = np.maximum(xpos - radius, centre - half)
-        high = np.minimum(xpos + radius, centre + half)
-        gap = np.maximum(np.maximum(low[self._second] - high[self._first], low[self._first] - high[self._second]), 0.0)
-        return np.where(self._unbounded, -np.inf, np.linalg.norm(gap, axis=1))
+        # Coordinate-major (6, K): each pair's boxes are gathered as contiguous rows, on which the gap's few
+        # operations run several times faster than on the column slices of (P, 3) arrays (a step gathers
+        # thousands of pairs). The same arithmetic in the same order: the same distances, bit for bit.
+        bounds = np.vstack([np.maximum(xpos - radius, centre - half).T, np.minimum(xpos + radius, centre + half).T])
+        first = np.take(bounds, self._first, axis=1)
+        second = np.take(bounds, self._second, axis=1)
+        gap = np.maximum(np.maximum(second[:3] - first[3:], first[:3] - second[3:]), 0.0)
+        return np.where(self._unbounded, -np.inf, np.sqrt(gap[0] * gap[0] + gap[1] * gap[1] + gap[2] * gap[2]))
 
     def compute_qp_inequalities(self, configuration: mink.Configuration, dt: float) -> Constraint:
         model, data = self.model, configuration.data
@@ -69,3 +73,4 @@ class BoxedCollisionLimit(mink.CollisionAvoidanceLimit):
 
 
 __all__ = ["BoxedCollisionLimit"]
+

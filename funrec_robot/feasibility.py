@@ -5,12 +5,14 @@ runs into the rest of the scene.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 import mujoco
 import numpy as np
 
 from funrec.errors import PlanningError
 from funrec.geometry.joints import joint_transform
-from funrec.typed import FloatArray
+from funrec.typed import BoolArray, FloatArray
 from funrec_robot.budget import check_time_limit
 from funrec_robot.ik import WholeBodyIK
 from funrec_robot.plan_file import Plan
@@ -71,6 +73,14 @@ def gravity_overload(
     return None
 
 
+def _geom_mask(model: mujoco.MjModel, *geoms: Iterable[int]) -> BoolArray:
+    """(ngeom,) True for the geoms in any of ``geoms``."""
+    mask = np.zeros(model.ngeom, dtype=bool)
+    for group in geoms:
+        mask[np.fromiter(group, dtype=np.int64)] = True
+    return mask
+
+
 def first_blocked_state(
     model: mujoco.MjModel, joint: int, start: float, target: float, step: float
 ) -> tuple[float, str] | None:
@@ -78,8 +88,8 @@ def first_blocked_state(
     penetrates the rest of the scene (not counting contacts it already has at the start), and the geom it
     meets; None if it moves freely."""
     states = np.linspace(start, target, max(2, int(np.ceil(abs(target - start) / step)) + 1))
-    part = set(part_geoms(model, joint).tolist())
-    others = set(np.flatnonzero(np.isin(model.geom_bodyid, robot_bodies(model), invert=True)).tolist()) - part
+    part = _geom_mask(model, part_geoms(model, joint))
+    others = np.isin(model.geom_bodyid, robot_bodies(model), invert=True) & ~part
     data = mujoco.MjData(model)
     resting: set[tuple[int, int]] = set()
     for k, state in enumerate(states):
@@ -88,34 +98,34 @@ def first_blocked_state(
         data.qpos[model.jnt_qposadr[joint]] = state
         mujoco.mj_kinematics(model, data)
         mujoco.mj_collision(model, data)
-        pairs = {
-            (int(c.geom1), int(c.geom2))
-            for c in data.contact[: data.ncon]
-            if ((c.geom1 in part and c.geom2 in others) or (c.geom2 in part and c.geom1 in others)) and c.dist < 0.0
-        }
+        # From MuJoCo's contact arrays at once (looping over its contact structs took a tenth of a plan).
+        geom = data.contact.geom[: data.ncon]
+        hit = ((part[geom[:, 0]] & others[geom[:, 1]]) | (part[geom[:, 1]] & others[geom[:, 0]])) & (data.contact.dist[: data.ncon] < 0.0)
+        pairs = {(int(g1), int(g2)) for g1, g2 in geom[hit]}
         if k == 0:
             resting = pairs
             continue
         new = pairs - resting
         if new:
             g1, g2 = next(iter(new))
-            return float(state), model.geom(g2 if g1 in part else g1).name
+            return float(state), model.geom(g2 if part[g1] else g1).name
     return None
 
 
-def _robot_scene_contacts(
-    model: mujoco.MjModel, data: mujoco.MjData, robot_geoms: set[int], allowed: set[int], floor: set[int]
-):
-    """(robot geom, scene geom, distance) of each contact ``mj_collision`` left in ``data`` between the robot and
-    the scene, other than the ``allowed`` geoms and the floor."""
-    for c in data.contact[: data.ncon]:
-        g1, g2 = int(c.geom1), int(c.geom2)
-        if (g1 in robot_geoms) == (g2 in robot_geoms):
-            continue
-        r, other = (g1, g2) if g1 in robot_geoms else (g2, g1)
-        if other in floor or other in allowed:
-            continue
-        yield r, other, float(c.dist)
+def _robot_scene_contacts(data: mujoco.MjData, robot: BoolArray, ignored: BoolArray):
+    """(robot geom, scene geom, distance) of each contact ``mj_collision`` left in ``data`` between the robot's
+    geoms (mask ``robot``) and the scene's, other than the ``ignored`` ones (the handle, the floor), in contact
+    order. Read from the contact arrays at once: looping over MuJoCo's contact structs took a third of Stretch 3's
+    approach checks."""
+    geom = data.contact.geom[: data.ncon]
+    in_robot = robot[geom]
+    first = in_robot[:, 0]
+    r = np.where(first, geom[:, 0], geom[:, 1])
+    other = np.where(first, geom[:, 1], geom[:, 0])
+    keep = (first != in_robot[:, 1]) & ~ignored[other]
+    dist = data.contact.dist[: data.ncon]
+    for k in np.flatnonzero(keep):
+        yield int(r[k]), int(other[k]), float(dist[k])
 
 
 def first_collision(
@@ -130,12 +140,13 @@ def first_collision(
     """First robot-scene contact along (K, nq) planning-joint samples (kinematic, penetration only), other
     than the gripper with the handle."""
     data = mujoco.MjData(model)
-    robot_geoms = set(bodies_geoms(model, ik.indices.bodies).tolist())
+    robot_geoms = _geom_mask(model, bodies_geoms(model, ik.indices.bodies))
+    ignored = _geom_mask(model, allowed, floor)
     for qk in q:
         data.qpos[:] = ik.full_q(qk, part_state, fingers)
         mujoco.mj_kinematics(model, data)
         mujoco.mj_collision(model, data)
-        for r, other, _ in _robot_scene_contacts(model, data, robot_geoms, allowed, floor):
+        for r, other, _ in _robot_scene_contacts(data, robot_geoms, ignored):
             return model.geom(r).name, model.geom(other).name
     return None
 
@@ -158,14 +169,15 @@ def release_sweep_depth(
         of the deepest of all; None if nothing is touched.
     """
     data = mujoco.MjData(model)
-    robot_geoms = set(bodies_geoms(model, ik.indices.bodies).tolist())
+    robot_geoms = _geom_mask(model, bodies_geoms(model, ik.indices.bodies))
+    ignored = _geom_mask(model, allowed, floor)
     depths, deepest, names = [], 0.0, None
     for fingers in commands:
         data.qpos[:] = ik.full_q(q, part_state, float(fingers))
         mujoco.mj_kinematics(model, data)
         mujoco.mj_collision(model, data)
         depth = 0.0
-        for r, other, dist in _robot_scene_contacts(model, data, robot_geoms, allowed, floor):
+        for r, other, dist in _robot_scene_contacts(data, robot_geoms, ignored):
             if dist >= 0.0:
                 continue
             depth = max(depth, -dist)

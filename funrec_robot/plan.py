@@ -51,7 +51,7 @@ from funrec_robot.task import ArticulationTask, path_states, resolve_target
 from funrec_robot.task_bounds import check_task_bounds
 from funrec_robot.task_sources import load_task, locate_scene
 from funrec_robot.trajopt import BasePlacement, PlacementProblem, place_base
-from funrec_robot.whole_body import approach_move, whole_body_configurations
+from funrec_robot.whole_body import RetreatTooShort, approach_move, whole_body_configurations
 
 log = logging.getLogger(__name__)
 
@@ -74,9 +74,21 @@ def _placement_problem(
     bases: int,
     config: PlanConfig,
     falls_to: float | None = None,
+    retreat: float = 0.0,
 ) -> PlacementProblem:
+    """Base placement for the handle path's grasp ``frames`` at ``states`` from ``bases`` stops; with ``retreat``
+    (m), the last stop also keeps the wrist in reach that far back along the approach from the path's end, where
+    the retreat must take it to clear the handle."""
     wrist = frames[:, :3, 3] - frames[:, :3, 2] * geometry.wrist_to_grasp
     stretch = np.minimum((np.arange(len(states)) * bases) // len(states), bases - 1)
+    targets, serving = wrist, stretch
+    if retreat > 0.0:
+        # Only after a retreat fell short (``_search``): the full retreat distance, not just the clearance the retreat
+        # needs (54 mm for Stretch 3 on mw_drawer_00: its IK's base rolled off the stop and backed off 10-49 mm), and
+        # not for every plan (Stretch's 1-stop placements of cabinet doors then missed the door by 5 mm: 2-3 times
+        # the search).
+        targets = np.vstack([wrist, wrist[-1] - frames[-1, :3, 2] * retreat])
+        serving = np.r_[stretch, bases - 1]
     circles = geometry.base_circles + geometry.arm_circles
     z_band = (min(c.z_band[0] for c in circles), max(c.z_band[1] for c in circles))
     exclude = np.concatenate([bodies_geoms(model, robot_bodies(model)), part_geoms(model, joint)])
@@ -93,8 +105,8 @@ def _placement_problem(
         sweeps.append(part_sweep_footprint(model, joint, sampled, z_band))
     free = tuple(motion in robot.base_motions for motion in ("x", "y", "yaw"))
     return PlacementProblem(
-        wrist_world=wrist,
-        stretch=stretch,
+        wrist_world=targets,
+        stretch=serving,
         base_free=free,  # type: ignore[arg-type]
         base_fixed=np.zeros(3),
         p_base_shoulder=geometry.p_base_shoulder,
@@ -174,12 +186,12 @@ def _hold(q: FloatArray, seconds: float, dt: float) -> Trajectory:
 
 
 def _gripper_move(
-    q: FloatArray, start: float, end: float, config: PlanConfig, hold_before: float = 0.0
+    q: FloatArray, start: float, end: float, config: PlanConfig, hold_before: float = 0.0, duration: float | None = None
 ) -> tuple[Trajectory, FloatArray]:
     """The robot holding still while the gripper command waits ``hold_before``, goes from start to end
-    (ruckig, 1 DoF), then settles."""
+    (ruckig, 1 DoF) in about ``duration`` (default ``config.gripper_time``), then settles."""
     span = abs(end - start)
-    v = max(span, 1e-6) / (0.6 * config.gripper_time)
+    v = max(span, 1e-6) / (0.6 * (config.gripper_time if duration is None else duration))
     command = point_to_point([start], [end], [v], [4.0 * v], config.retime)
     settle = int(round(config.grasp_settle_time / config.retime.dt))
     wait = int(round(hold_before / config.retime.dt))
@@ -366,17 +378,18 @@ def _search(
         key=lambda attempt: attempt[0] + 0.6 * attempt[1],
     )
     errors: list[tuple[int, PlanningError]] = []
-    # (base stops, grasp rank, unload the arm, base placement to reuse)
-    pending: list[tuple[int, int, bool, BasePlacement | None]] = [
-        (bases, rank, False, None) for bases, rank in attempts if rank < len(candidates)
+    # (base stops, grasp rank, unload the arm, base placement to reuse, room for the retreat in the placement)
+    pending: list[tuple[int, int, bool, BasePlacement | None, bool]] = [
+        (bases, rank, False, None, False) for bases, rank in attempts if rank < len(candidates)
     ]
     postures = list(robot.q_postures)
     while pending and time.process_time() - cpu_started < config.time_budget:
         check_time_limit("the search over base stops and grasps")
-        bases, rank, unload, placement = pending.pop(0)
+        bases, rank, unload, placement, room = pending.pop(0)
         grasp = candidates[rank]
         if placement is None:
-            problem = _placement_problem(robot, model, joint, geometry, grasp.frames, states, bases, config, handle.final_state)
+            problem = _placement_problem(robot, model, joint, geometry, grasp.frames, states, bases, config, handle.final_state,
+                                         config.retreat_distance if room else 0.0)
             try:
                 placement = place_base(problem, config.placement)
             except TimeLimitSpent:
@@ -391,10 +404,10 @@ def _search(
             errors.append((1, exc))
             if postures:  # the robot's next home posture may hold the gripper with less load on the wrist
                 robot = replace(robot, q_home=postures.pop(0))
-                pending.insert(0, (bases, rank, False, None))
+                pending.insert(0, (bases, rank, False, None, room))
                 continue
             if not unload and config.ik.gravity_cost > 0.0:  # no posture left: unload the arm through its null space
-                pending.insert(0, (bases, rank, True, placement))
+                pending.insert(0, (bases, rank, True, placement, room))
                 continue
             # A wrist too weak to hold the gripper level: try the grasps that point it down most first.
             down = {r: float(candidates[r].frames[0, 2, 2]) for r in range(len(candidates))}
@@ -405,6 +418,12 @@ def _search(
         except PlanningError as exc:
             log.debug("part '%s', %d base stop(s), grasp %d: %s", task.part, bases, rank, exc)
             errors.append((1, exc))
+            if isinstance(exc, RetreatTooShort) and not room:
+                # This stop and every later one placed with the retreat's end in reach: a telescoping arm drawn in to
+                # the end of a drawer's pull cannot draw in further (Stretch 3 on mw_drawer_00 backed off 20 of 54 mm;
+                # placed so, it planned from 3 stops).
+                # (A placement kept for a retry, unloading the arm, stays as it is.)
+                pending = [(bases, rank, unload, None, True)] + [(b, r, u, p, m or p is None) for b, r, u, p, m in pending]
             continue
     if not errors:
         raise PlanningError(f"part '{task.part}': planning time budget exhausted")
@@ -443,14 +462,20 @@ def _timed(
         actuate = _slowed(actuate, float(task.demo_times[-1] - task.demo_times[0]) / actuate.duration, rc.dt)
     q_path = configs["path"]
     check_time_limit("timing (retreat)")
-    retreat = point_to_point(q_path[-1], configs["retreat"], v, a, rc)
+    retreat_path = configs.get("retreat_path")
+    if retreat_path is not None and len(retreat_path) >= 3:
+        # Along the IK's steps straight back from the handle, as the handle path is timed.
+        retreat = retime_path(retreat_path, v, a, rc)
+    else:
+        retreat = point_to_point(q_path[-1], configs["retreat"], v, a, rc)
     if handle.final_state is not None:
         # The released part rests on the open fingers until they have slid out from under it.
         retreat = _slowed(retreat, 1.0 / config.falling_retreat_scale, rc.dt)
     end_state = target_state if handle.final_state is None else handle.final_state
     close_hold, close_cmd = _gripper_move(q_path[0], opening, holding, config)
     released = solution.get("released", release_command(robot, holding, config.grasp))
-    open_hold, open_cmd = _gripper_move(q_path[-1], holding, released, config, config.release_hold_time)
+    open_hold, open_cmd = _gripper_move(q_path[-1], holding, released, config, config.release_hold_time,
+                                        robot.gripper.release_time)
 
     def constant(traj: Trajectory, value: float) -> FloatArray:
         return np.full(len(traj.t), value)

@@ -96,6 +96,10 @@ class GripperDescription:
     """How much deeper into the part or the scene (the handle aside) the gripper, opening on the handle at the end
     of the path, may bring a finger than it lay while holding, m (``gripper.release_sweep``); None: not checked.
     The gripper then opens less than ``release_gap`` (``whole_body.clear_release``)."""
+    release_time: float | None = None
+    """How long the gripper takes to open on letting go, s (``gripper.release_time``); None: the planner's
+    ``PlanConfig.gripper_time``. A hinged jaw whose opening shakes the wrist wants longer: the grasp lets go of
+    the part moving as the hand moved last."""
 
     def command(self, half_width: float) -> float:
         """The command that leaves ``half_width`` between the grasp centre and each jaw (linear between closed
@@ -368,7 +372,7 @@ def _gripper(facts: ModelFacts) -> GripperDescription:
     forces = [file.effort_limits[n] for n in file.gripper_joints if n in file.effort_limits]
     return GripperDescription(file.gripper_joints, file.gripper_actuator, file.gripper_open, file.gripper_closed,
                               file.gripper_extra_actuators, file.gripper_open_width, min(forces) if forces else None,
-                              file.gripper_release_gap, file.gripper_release_sweep)
+                              file.gripper_release_gap, file.gripper_release_sweep, file.gripper_release_time)
 
 
 def _servos(facts: ModelFacts) -> dict[str, ServoGains]:

@@ -124,6 +124,8 @@ class RobotFile:
     gripper_release_sweep: float | None = None
     """How much deeper into the part or the scene the opening gripper may go on letting go than while holding, m
     (None: not checked)."""
+    gripper_release_time: float | None = None
+    """How long the gripper takes to open on letting go, s (None: the planner's default)."""
     masses: dict[str, float] = field(default_factory=dict)
     """Body -> mass replacing the model's, kg (its inertia scaled alike), for a model file whose masses are wrong."""
     coupled_joints: dict[str, tuple[str, float]] = field(default_factory=dict)
@@ -255,7 +257,8 @@ def read_robot_yaml(path: str | Path) -> RobotFile:
         raise r.fail("base", f"planar: true adds the base joints {format_names(PLANAR_JOINTS.values())}; do not name x, y or yaw as well")
     if planar:
         motions = dict(PLANAR_JOINTS)
-    gripper = r.mapping(top["gripper"], "gripper", ("joints", "actuator", "open", "closed", "open_width", "release_gap", "release_sweep"))
+    gripper = r.mapping(top["gripper"], "gripper", ("joints", "actuator", "open", "closed", "open_width", "release_gap", "release_sweep",
+                                                        "release_time"))
     for key in ("joints", "open", "closed"):
         if key not in gripper:
             raise r.fail("gripper", f"missing key '{key}'")
@@ -323,6 +326,7 @@ def read_robot_yaml(path: str | Path) -> RobotFile:
         gripper_open_width=r.number(gripper["open_width"], "gripper.open_width", positive=True) if "open_width" in gripper else None,
         gripper_release_gap=r.number(gripper["release_gap"], "gripper.release_gap", positive=True) if "release_gap" in gripper else None,
         gripper_release_sweep=r.number(gripper["release_sweep"], "gripper.release_sweep", positive=True) if "release_sweep" in gripper else None,
+        gripper_release_time=r.number(gripper["release_time"], "gripper.release_time", positive=True) if "release_time" in gripper else None,
         coupled_joints=_couplings(r, top.get("coupled_joints")),
         drop_actuators=r.names(simulation.get("drop_actuators", []), "simulation.drop_actuators"),
     )

@@ -39,6 +39,11 @@ from funrec_robot.trajopt import BasePlacement
 log = logging.getLogger(__name__)
 
 
+class RetreatTooShort(PlanningError):
+    """The handle path is planned, but the arm cannot back the gripper off the handle at its end: base placement
+    left the arm no room along the approach there (``plan._search`` then places the base again with room for it)."""
+
+
 def _base_q(robot: RobotDescription, pose: FloatArray) -> FloatArray:
     """Base joint positions (robot.base_motions order) for a base pose (x, y, yaw)."""
     return np.array([pose[{"x": 0, "y": 1, "yaw": 2}[m]] for m in robot.base_motions])
@@ -77,7 +82,8 @@ def whole_body_configurations(
         PlanningError: an IK target is missed or the approach runs into the scene.
 
     Returns a dict: grasp, flip, path (N, 4, 4 grasp frames used), states (N,), configs {approach:
-    [q_start, (via,) q_pre, q_grasp], path: (N, nq), retreat}, tracked (IKResult), placement.
+    [q_start, (via,) q_pre, q_grasp], path: (N, nq), retreat, retreat_path: (K, nq) from the path's end to
+    retreat along the approach}, tracked (IKResult), placement.
     """
     frames, depth = grasp.frames, grasp.depth
     start_state = float(states[0])
@@ -182,6 +188,11 @@ def _from_pregrasp(
         released = clear_release(robot, model, ik, task, q_path[-1], target_state, holding, released, handle, floor, config)
     T_end = ik.grasp_pose(q_path[-1], target_state, released)
     q_retreat = q_path[-1]
+    # Every step is kept: the retreat is timed through them (``plan._timed``), so that the hand leaves the handle
+    # straight back along the approach. Timed from its first configuration to its last alone, as one joint-space
+    # move, Spot's hand swung 1.6 mm sideways into the opened jaw's side of a sliding door's bar, 5 mm away, as it
+    # backed off, and knocked the door (15 kg on 1 N s/m) to 1.2 cm/s: it coasted 2 cm short of its target.
+    retreat_path = [q_retreat]
     steps = np.arange(1, int(np.ceil(config.retreat_distance / config.retreat_step)) + 1) * config.retreat_step
     for distance in np.minimum(steps, config.retreat_distance):
         T_retreat = offset_along_approach(path[-1], float(distance))
@@ -189,11 +200,12 @@ def _from_pregrasp(
         if e_pos > config.track_position_tolerance or e_rot > config.track_orientation_tolerance:
             break
         q_retreat = q_next
+        retreat_path.append(q_retreat)
     T_back = ik.grasp_pose(q_retreat, target_state, released)
     backed = float((T_end[:3, 3] - T_back[:3, 3]) @ T_end[:3, 2])
     needed = max(fingertip_depth - depth, 0.0) + config.min_retreat_clearance
     if backed < needed:
-        raise PlanningError(
+        raise RetreatTooShort(
             f"whole-body IK: retreat from part '{task.part}' at state {target_state:.3f} {task.unit} backs the gripper "
             f"off only {1000 * backed:.0f} mm ({1000 * needed:.0f} mm needed to clear the handle)"
         )
@@ -202,7 +214,7 @@ def _from_pregrasp(
         "flip": flip,
         "path": path @ np.linalg.inv(offset_frame(grasp.offset)),  # the handle's frames
         "states": states,
-        "configs": {"approach": approach, "path": q_path, "retreat": q_retreat},
+        "configs": {"approach": approach, "path": q_path, "retreat": q_retreat, "retreat_path": np.array(retreat_path)},
         "tracked": tracked,
         "placement": placement,
         "released": released,
