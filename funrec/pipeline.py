@@ -307,7 +307,8 @@ def _depth_part(window: WindowTracks, capture: Capture, trajectory: CameraTrajec
         return None
     hand = (lambda frame: span.mask("hand", frame)) if span.has_hand_masks else None
     joint = None if rival is None else (rival.joint_type, rival.axis_world, rival.pivot_world)
-    proposal = propose_part(span, poses, hand, config.depth_proposal, joint)
+    seen = None if rival is None else (rival.frames[~rival.interpolated], rival.states[~rival.interpolated])
+    proposal = propose_part(span, poses, hand, config.depth_proposal, joint, seen)
     added = proposal_tracks(proposal, span, poses) if proposal is not None and hands_detected else None
     if added is not None and _hand_labels_part(added, span, config):
         # hands detected before any part was known take a part moving towards the camera for the arm (a
@@ -322,7 +323,8 @@ def _depth_part(window: WindowTracks, capture: Capture, trajectory: CameraTrajec
         # lose a joint that explains the surface as well (dark_rev_glass_wall_00: the first proposal's hinge,
         # 0.4 deg, range 1.53 rad for 1.57, was replaced by one 41 deg off)
         again = joint if joint is not None else (first.joint_type, first.axis_world, first.pivot_world)
-        proposal = propose_part(span, poses, lambda frame: hands.mask(frame), config.depth_proposal, again)
+        proposal = propose_part(span, poses, lambda frame: hands.mask(frame), config.depth_proposal, again,
+                                seen if joint is not None else None)
         if joint is None and proposal is not None and proposal.rival_held:
             log.info("depth proposal: the first proposal's %s holds against the one made with the hands detected again",
                      first.joint_type)

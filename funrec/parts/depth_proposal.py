@@ -136,7 +136,8 @@ Joint = tuple[str, FloatArray, FloatArray | None]
 
 def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask | None = None,
                  config: DepthProposalConfig = DepthProposalConfig(),  # noqa: B008 (frozen)
-                 rival: Joint | None = None) -> DepthProposal | None:
+                 rival: Joint | None = None, rival_states: tuple[IntArray, FloatArray] | None = None
+                 ) -> DepthProposal | None:
     """Propose the part that moved in a span of frames, and its joint, from depth alone.
 
     Args:
@@ -146,6 +147,9 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
         config: settings.
         rival: a joint found otherwise (the point tracks' part), scored on the same surface in the
             same way as the front's hypotheses.
+        rival_states: the rival's (frames, states) where its tracks saw it (frames of this span,
+            states along the rival's axis, 0 at frame 0): when the rival and the proposal are both
+            slides, they hold the proposal's state search where depth does not object (see below).
 
     Returns:
         The proposal (``rival_held`` when the ``rival`` explains the surface at least as well), or
@@ -236,8 +240,20 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
     # 2.0, mw_window_00 0.05 against 0.3 at dc34b2a; dark_pri_drawer_00's normal 0.8 deg off against its
     # tracks' 5.1 at f8e389e).
     arrival = replace(coarse_arrival, frames=np.arange(F), p_world=arrived)
+    # A panel sliding in its own plane looks the same in depth wherever it stands but at its edges, so
+    # its depth cost is flat in the state until it has moved far, and the chain, which prices a travel
+    # the same whatever frames it happens in, spread it over the frames before the panel moved
+    # (plain_pri_wardrobe_00: 7.6 cm of travel read in the 40 frames before it moved). The tracks' slide, on
+    # the handle and the panel's edge, saw when it moved: its states, along depth's slide, hold the search
+    # where depth does not object (a slide's tracks may be on the arm, which pulls back after a drawer
+    # stopped: plain_pri_drawer_02, where depth objects). The tracks' own axis (13.8 deg off) is not used.
+    seen = None
+    if rival is not None and rival_states is not None and rival[0] == joint_type == "prismatic":
+        frames_seen, states_seen = (np.asarray(a) for a in rival_states)
+        inside = (frames_seen > 0) & (frames_seen < F)
+        seen = (frames_seen[inside].astype(np.int64), states_seen[inside] * float(np.asarray(rival[1]) @ axis))
     states = depth_states(capture, trajectory, joint_type, axis, pivot, points, np.zeros(1, np.int64), np.zeros(1),
-                          np.ones(1, bool), config.depth, arrival=arrival)
+                          np.ones(1, bool), config.depth, arrival=arrival, seen_states=seen)
     states = states - states[0]
     if states[np.argmax(np.abs(states))] < 0:
         axis, states = -axis, -states

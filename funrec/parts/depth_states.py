@@ -118,6 +118,7 @@ def depth_states(
     config: DepthStateConfig = DepthStateConfig(),  # noqa: B008 (frozen, immutable default)
     normal_world: FloatArray | None = None,
     arrival: Arrival | None = None,
+    seen_states: tuple[IntArray, FloatArray] | None = None,
 ) -> FloatArray:
     """Joint state of every frame of the capture from its depth, consistent with the tracked states.
 
@@ -142,12 +143,16 @@ def depth_states(
             unknown; see :func:`oriented_normals`); None: no point is scored as a panel's far face.
         arrival: surfaces that arrived in front of the canonical frame's view (:class:`Arrival`),
             scored moved back by each state; None: the part's own points only.
+        seen_states: (frames, states) another cue saw (the tracks of a slide whose axis depth
+            replaced); each holds the search there as a trusted tracked state would, unless its
+            depth objects: that state costs more than ``change_cost`` above the frame's best
+            (depth sees the part elsewhere; the cue was on something else, e.g. the arm).
 
     Returns:
         (F,) state of every capture frame (rad or m), same canonical state as ``tracked_states``.
     """
     states, _ = _search(capture, trajectory, joint_type, axis_world, pivot_world, p_world, tracked_frames, tracked_states,
-                        trusted, config, normal_world, arrival)
+                        trusted, config, normal_world, arrival, seen_states)
     return states
 
 
@@ -183,7 +188,8 @@ def depth_fit(
 def _search(capture: Capture, trajectory: CameraTrajectory, joint_type: str, axis_world: FloatArray,
             pivot_world: FloatArray | None, p_world: FloatArray, tracked_frames: IntArray, tracked_states: FloatArray,
             trusted: BoolArray, config: DepthStateConfig, normal_world: FloatArray | None,
-            arrival: Arrival | None = None) -> tuple[FloatArray, float]:
+            arrival: Arrival | None = None, seen_states: tuple[IntArray, FloatArray] | None = None
+            ) -> tuple[FloatArray, float]:
     """(F,) states of :func:`depth_states` and the mean depth cost of the chain over the frames that see the part."""
     F = len(capture)
     revolute = joint_type == "revolute"
@@ -209,6 +215,13 @@ def _search(capture: Capture, trajectory: CameraTrajectory, joint_type: str, axi
     sigma = config.track_sigma_rad if revolute else config.track_sigma_m
     for frame, state in zip(np.asarray(tracked_frames)[trusted], np.asarray(tracked_states)[trusted]):
         cost[frame] += 0.5 * ((grid - state) / sigma) ** 2
+    if seen_states is not None:
+        held = 0
+        for frame, state in zip(*seen_states, strict=True):
+            if depth_only[frame, np.argmin(np.abs(grid - state))] <= depth_only[frame].min() + config.change_cost:
+                cost[frame] += 0.5 * ((grid - state) / sigma) ** 2
+                held += 1
+        logger.info("depth states: %d of %d states seen by another cue held (depth objects to the rest)", held, len(seen_states[0]))
     speed = config.max_speed_rad if revolute else config.max_speed_m
     chain = _min_cost_chain(cost, round(speed / step), config.change_cost)
     states = grid[chain]
