@@ -274,6 +274,13 @@ def test_front_axes_follow_the_edges_of_an_l_shaped_frame() -> None:
     assert abs(normal[2]) > 0.999
 
 
+def _still_camera_span(depth: list[np.ndarray]) -> tuple[object, SimpleNamespace]:
+    """A capture-like span of these 160 px depth images and its poses: the camera still at the origin."""
+    capture = type("FakeCapture", (), {"__len__": lambda self: len(depth), "depth_m": lambda self, f: depth[f],
+                                       "intrinsics": SimpleNamespace(K=K, width=160)})()
+    return capture, SimpleNamespace(T_world_camera=np.tile(np.eye(4), (len(depth), 1, 1)))
+
+
 def _drawer_depth(state: float, normal: np.ndarray) -> np.ndarray:
     """(120, 160) depth of a plain 0.5 x 0.3 m drawer front, flush with a wall through (0, 0, 1.5)
     whose normal ``normal`` faces the camera, pulled out ``state`` metres along that normal; where
@@ -308,10 +315,7 @@ def test_a_drawer_slides_along_its_front_normal_not_along_tilted_tracks() -> Non
     normal /= np.linalg.norm(normal)
     F = 24
     true = 0.25 * np.clip((np.arange(F) - 2) / 18.0, 0.0, 1.0)
-    depth = [_drawer_depth(s, normal) for s in true]
-    capture = type("FakeCapture", (), {"__len__": lambda self: F, "depth_m": lambda self, f: depth[f],
-                                       "intrinsics": SimpleNamespace(K=K, width=160)})()
-    trajectory = SimpleNamespace(T_world_camera=np.tile(np.eye(4), (F, 1, 1)))
+    capture, trajectory = _still_camera_span([_drawer_depth(s, normal) for s in true])
     tilted = Rotation.from_rotvec(np.deg2rad(5.0) * np.array([0.0, 1.0, 0.0])).apply(normal)
     for rival in (None, ("prismatic", tilted, None)):
         proposal = propose_part(capture, trajectory, rival=rival)
@@ -346,10 +350,7 @@ def test_a_panel_sliding_in_its_plane_rests_until_its_tracks_saw_it_move() -> No
     rng = np.random.default_rng(3)
     F = 40
     true = 0.3 * np.clip((np.arange(F) - 20) / 14.0, 0.0, 1.0)
-    depth = [_panel_depth(s, rng) for s in true]
-    capture = type("FakeCapture", (), {"__len__": lambda self: F, "depth_m": lambda self, f: depth[f],
-                                       "intrinsics": SimpleNamespace(K=K, width=160)})()
-    trajectory = SimpleNamespace(T_world_camera=np.tile(np.eye(4), (F, 1, 1)))
+    capture, trajectory = _still_camera_span([_panel_depth(s, rng) for s in true])
     tracked = np.arange(0, 30)  # the tracks on the handle die a few frames after the slide began,
     seen = true[tracked] + 0.003
     seen[26:] = 0.0  # ... and those left are on the arm, which stops (they are not used once the slide moved)
