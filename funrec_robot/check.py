@@ -169,6 +169,9 @@ def _body_T(data: mujoco.MjData, body: int) -> FloatArray:
 
 
 def _point_box_distance(model: mujoco.MjModel, data: mujoco.MjData, geoms: npt.ArrayLike, p: FloatArray) -> float:
+    """Distance (m) from ``p`` to the nearest of the geoms' boxes; inf without geoms."""
+    if len(geoms) == 0:  # a twin's grasp point far from every piece of the true part: nothing to hold
+        return float("inf")
     centre, R, half = geom_boxes(model, data, geoms)
     local = np.einsum("kji,kj->ki", R, p - centre)
     return float(np.min(np.linalg.norm(np.maximum(np.abs(local) - half, 0.0), axis=1)))
@@ -280,6 +283,7 @@ class _Execution:
         centre, R, half = geom_boxes(self.model, data, self.part_geoms)
         local = np.einsum("kji,kj->ki", R, self.p_start - centre)
         distance = np.linalg.norm(np.maximum(np.abs(local) - half, 0.0), axis=1)
+        self._handle_miss_m = float(distance.min()) if len(distance) else float("inf")
         return self.part_geoms[distance <= self.config.handle_radius]
 
     def _reset(self) -> None:
@@ -570,7 +574,11 @@ class _Execution:
             run.fail("target", run.t_end, f"joint '{self.joint_name}' ended at {final:.4f} {unit}, target {self.target_state:.4f} (error {error:.4f} > {tolerance:.4f})")
         if cfg.max_handle_force is not None and run.peak[0] > cfg.max_handle_force:
             run.fail("handle_force", run.peak[1], f"peak handle force {run.peak[0]:.1f} N > {cfg.max_handle_force:.1f} N")
-        if run.engaged_at is None:
+        if run.engaged_at is None and len(self.handle) == 0:
+            run.fail("grasp", self.plan.segment("grasp").t_end,
+                     f"the plan's grasp point is {self._handle_miss_m:.3f} m from the nearest piece of part "
+                     f"'{self.joint_name}' in the checked scene (none within {cfg.handle_radius} m): nothing to hold")
+        elif run.engaged_at is None:
             run.fail("grasp", self.plan.segment("grasp").t_end, f"the gripper never closed within {cfg.engage_distance} m of the handle")
         video_path = None
         if run.recorder is not None:

@@ -258,3 +258,16 @@ def test_the_legitimate_path_runs_with_default_settings(scenes, tmp_path, capsys
         server.shutdown()
         thread.join(5.0)
         server.server_close()
+
+
+def test_a_grasp_point_far_from_every_piece_of_the_part_is_nothing_to_hold() -> None:
+    """A twin's grasp point may land off every piece of the true part (geo_angled_rev_cabinet_00's twin at
+    da881ad: 3.9 cm from the nearest): the check then has no handle geoms, and the distance to them is
+    infinite (the grasp criterion fails with that distance), not a numpy ValueError out of the bench."""
+    from funrec_robot.check import _point_box_distance
+
+    model = mujoco.MjModel.from_xml_string("<mujoco><worldbody><geom type='box' size='.1 .1 .1'/></worldbody></mujoco>")
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    assert _point_box_distance(model, data, np.zeros(0, dtype=np.int64), np.zeros(3)) == float("inf")
+    assert _point_box_distance(model, data, np.array([0]), np.array([0.3, 0.0, 0.0])) == pytest.approx(0.2)
