@@ -323,8 +323,7 @@ def _depth_part(window: WindowTracks, capture: Capture, trajectory: CameraTrajec
         # lose a joint that explains the surface as well (dark_rev_glass_wall_00: the first proposal's hinge,
         # 0.4 deg, range 1.53 rad for 1.57, was replaced by one 41 deg off)
         again = joint if joint is not None else (first.joint_type, first.axis_world, first.pivot_world)
-        proposal = propose_part(span, poses, lambda frame: hands.mask(frame), config.depth_proposal, again,
-                                seen if joint is not None else None)
+        proposal = propose_part(span, poses, lambda frame: hands.mask(frame), config.depth_proposal, again, seen)
         if joint is None and proposal is not None and proposal.rival_held:
             log.info("depth proposal: the first proposal's %s holds against the one made with the hands detected again",
                      first.joint_type)

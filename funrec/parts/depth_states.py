@@ -213,15 +213,15 @@ def _search(capture: Capture, trajectory: CameraTrajectory, joint_type: str, axi
         _add_arrival(cost, seeing, T_grid, arrival, config)
     depth_only = cost.copy()
     sigma = config.track_sigma_rad if revolute else config.track_sigma_m
-    for frame, state in zip(np.asarray(tracked_frames)[trusted], np.asarray(tracked_states)[trusted]):
-        cost[frame] += 0.5 * ((grid - state) / sigma) ** 2
+    _hold(cost, grid, np.asarray(tracked_frames)[trusted], np.asarray(tracked_states)[trusted], sigma)
     if seen_states is not None:
-        held = 0
-        for frame, state in zip(*seen_states, strict=True):
-            if depth_only[frame, np.argmin(np.abs(grid - state))] <= depth_only[frame].min() + config.change_cost:
-                cost[frame] += 0.5 * ((grid - state) / sigma) ** 2
-                held += 1
-        logger.info("depth states: %d of %d states seen by another cue held (depth objects to the rest)", held, len(seen_states[0]))
+        # held as tracked states, where depth does not object (the state within change_cost of the frame's best)
+        frames, seen = (np.asarray(a) for a in seen_states)
+        nearest = np.abs(grid[None, :] - seen[:, None]).argmin(axis=1)
+        agree = depth_only[frames, nearest] <= depth_only[frames].min(axis=1) + config.change_cost
+        _hold(cost, grid, frames[agree], seen[agree], sigma)
+        logger.info("depth states: %d of %d states seen by another cue held (depth objects to the rest)",
+                    int(agree.sum()), len(frames))
     speed = config.max_speed_rad if revolute else config.max_speed_m
     chain = _min_cost_chain(cost, round(speed / step), config.change_cost)
     states = grid[chain]
@@ -229,6 +229,11 @@ def _search(capture: Capture, trajectory: CameraTrajectory, joint_type: str, axi
                 F, config.min_points, states.min(), states.max())
     mean_cost = float(depth_only[np.arange(F), chain][seeing].mean()) if seeing.any() else float("nan")
     return states, mean_cost
+
+
+def _hold(cost: FloatArray, grid: FloatArray, frames: IntArray, states: FloatArray, sigma: float) -> None:
+    """Add to ``cost`` (F, G), in place, a Gaussian term (``sigma``) around each given frame's state."""
+    np.add.at(cost, np.asarray(frames, dtype=np.int64), 0.5 * ((grid[None, :] - np.asarray(states)[:, None]) / sigma) ** 2)
 
 
 def _add_arrival(cost: FloatArray, seeing: BoolArray, T_grid: FloatArray, arrival: Arrival, config: DepthStateConfig) -> None:
