@@ -361,7 +361,46 @@ def test_a_panel_sliding_in_its_plane_rests_until_its_tracks_saw_it_move() -> No
     assert states[:20].max() < 0.01, states[:20].round(3)
     assert abs(states[-1] - 0.3) < 0.03, states[-1]
     # tracks that stood still throughout (on a resting arm, not on the panel) do not hold it where depth
-    # sees it moved: the state keeps up with the slide within the 3 cm depth tolerance
+    # sees it moved: the state keeps up with the slide within the 3 cm depth tolerance and one 4 mm grid step
+    # (the cost is flat within the tolerance, and the chain's pick there moves by a step with the slide's axis)
     on_arm = propose_part(capture, trajectory, rival=rival, rival_states=(tracked, np.zeros(len(tracked))))
     assert on_arm is not None
-    assert np.abs(np.abs(on_arm.states)[26:30] - true[26:30]).max() < 0.03, np.abs(on_arm.states)[20:30].round(3)
+    assert np.abs(np.abs(on_arm.states)[26:30] - true[26:30]).max() < 0.034, np.abs(on_arm.states)[20:30].round(3)
+
+
+def test_a_drawer_front_normal_is_refitted_on_the_closed_front_around_a_thin_strip() -> None:
+    """What leaves of a drawer pulled towards a camera above it can be a strip a few pixels tall,
+    whose plane fit tilts by degrees across it (light_dim_pri_drawer_00: 3.1 deg). Refitted on
+    frame 0's surface in that plane and connected to the strip (a cabinet front, 3 mm depth noise,
+    under a countertop at right angles to it), the normal comes back to within 0.5 deg: the
+    least-squares plane of ~10^4 noisy pixels is exact to hundredths of a degree, and the
+    countertop's pixels within the 12 mm band along the edge tilt it by a few tenths at most."""
+    from funrec.parts.depth_proposal import DepthProposalConfig, _grown_normal
+
+    rng = np.random.default_rng(0)
+    normal = np.array([0.2, -0.35, -1.0])
+    normal /= np.linalg.norm(normal)
+    centre = np.array([0.0, 0.1, 1.5])
+    v, u = np.mgrid[0:120, 0:160].astype(float)
+    rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1)
+    t_front = (centre @ normal) / (rays @ normal)
+    top = np.array([0.0, -1.0, 0.0])  # a countertop 10 cm above the front's centre, facing up
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_top = ((centre + np.array([0.0, -0.1, 0.0])) @ top) / (rays @ top)
+    above = (t_top > 0) & (t_top < t_front)
+    depth = np.where(above, t_top, t_front) + rng.normal(0.0, 0.003, t_front.shape)
+    strip = ~above & (np.abs(v - 80) <= 1) & (np.abs(u - 80) <= 30)
+    points = rays[strip] * depth[strip, None]
+    across = np.cross(normal, [0.0, 1.0, 0.0])
+    tilted = Rotation.from_rotvec(np.deg2rad(3.0) * across / np.linalg.norm(across)).apply(normal)
+    views = SimpleNamespace(depth0_m=depth, capture=SimpleNamespace(intrinsics=SimpleNamespace(K=K)),
+                            trajectory=SimpleNamespace(T_world_camera=np.eye(4)[None]), hand=None)
+
+    def error_deg(n: np.ndarray) -> float:
+        return float(np.degrees(np.arccos(min(1.0, abs(float(n @ normal))))))
+
+    assert error_deg(tilted) > 2.9
+    grown = _grown_normal(views, points, tilted, DepthProposalConfig())
+    assert error_deg(grown) < 0.5, error_deg(grown)
+    assert grown @ tilted > 0  # the sign it was given
+    assert error_deg(_grown_normal(views, points, tilted, DepthProposalConfig(front_growth_rounds=0))) > 2.9

@@ -165,6 +165,7 @@ def depth_fit(
     p_world: FloatArray,
     config: DepthStateConfig = DepthStateConfig(),  # noqa: B008 (frozen, immutable default)
     arrival: Arrival | None = None,
+    normal_world: FloatArray | None = None,
 ) -> tuple[FloatArray, float]:
     """How well a joint hypothesis explains the depth of a capture, from depth alone.
 
@@ -174,7 +175,8 @@ def depth_fit(
     without any texture: a door turned by a slide leaves its points in the air.
 
     Args: as :func:`depth_states` (``p_world`` (M, 3) canonical part points, world frame; the mean
-        cost includes the ``arrival`` term where given).
+        cost includes the ``arrival`` term where given; ``normal_world`` scores points that face
+        away from the camera as a panel's far face).
 
     Returns:
         (F,) state of every frame, and the mean cost in [0, 1] (NaN when no frame sees
@@ -182,7 +184,7 @@ def depth_fit(
     """
     none = np.zeros(0, np.int64)
     return _search(capture, trajectory, joint_type, axis_world, pivot_world, p_world, none, np.zeros(0),
-                   np.zeros(0, bool), config, None, arrival)
+                   np.zeros(0, bool), config, normal_world, arrival)
 
 
 def _search(capture: Capture, trajectory: CameraTrajectory, joint_type: str, axis_world: FloatArray,
