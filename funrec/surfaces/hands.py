@@ -247,17 +247,25 @@ class _Detector:
             return image
         return cv2.resize(image, self.size, interpolation=cv2.INTER_NEAREST if nearest else cv2.INTER_AREA)
 
+    # Depth images are held flat with one more reading, the one of pixels outside the image, so that
+    # a reprojection reads them with one gather (no masked replacement after it).
     def depth(self, frame: int) -> Float32Array:
+        """(h, w) depth of a frame at working resolution, metres, 0 = no reading."""
+        return self.depth_flat(frame)[:-1].reshape(self.size[1], self.size[0])
+
+    def depth_flat(self, frame: int) -> Float32Array:
+        """(h*w + 1,) :meth:`depth` flat, then 0 (no reading) for pixels outside the image."""
         if frame not in self._depth:
-            self._depth[frame] = self._resize(self.capture.depth_m(frame).astype(np.float32))
+            self._depth[frame] = _padded(self._resize(self.capture.depth_m(frame).astype(np.float32)), 0.0)
         return self._depth[frame]
 
     def min_depth(self, frame: int) -> Float32Array:
-        """Min-filtered depth of a reference frame, holes at ``_NO_DEPTH``."""
+        """(h*w + 1,) min-filtered depth of a reference frame, flat, holes at ``_NO_DEPTH``, then
+        ``_NO_DEPTH`` for pixels outside the image."""
         if frame not in self._min_depth:
             d = self.depth(frame)
             size = self.config.reference_window_px
-            self._min_depth[frame] = cv2.erode(np.where(d > 0, d, _NO_DEPTH).astype(np.float32), np.ones((size, size), np.uint8))
+            self._min_depth[frame] = _padded(cv2.erode(np.where(d > 0, d, _NO_DEPTH).astype(np.float32), np.ones((size, size), np.uint8)), _NO_DEPTH)
         return self._min_depth[frame]
 
     def evict(self, before: int) -> None:
@@ -281,7 +289,8 @@ class _Detector:
 
         Returns:
             z_ref (n,) depth in the reference camera; seen (n,) min-filtered and exact (n,) raw
-            reference depth at the reprojection; ok (n,) whether the reprojection could be tested.
+            reference depth at the reprojection (float32; ``_NO_DEPTH`` and 0 outside the
+            image); ok (n,) whether the reprojection could be tested.
         """
         w, h = self.size
         R, t = T_ref_frame[:3, :3], T_ref_frame[:3, 3]
@@ -313,12 +322,12 @@ class _Detector:
         inside &= u < w
         inside &= v >= 0
         inside &= v < h
-        v *= w  # pixel index v w + u, exact in float64; 0 outside (its reading is replaced)
+        v *= w  # pixel index v w + u, exact in float64; h w outside (the padded reading)
         v += u
-        np.copyto(v, 0.0, where=~inside)
+        np.copyto(v, float(w * h), where=~inside)
         index = v.astype(np.intp)
-        seen = np.where(inside, self.min_depth(ref).ravel()[index], np.float64(_NO_DEPTH))
-        exact = np.where(inside, self.depth(ref).ravel()[index], np.float64(0.0))
+        seen = self.min_depth(ref)[index]
+        exact = self.depth_flat(ref)[index]
         return z_ref, seen, exact, inside & (seen < _NO_DEPTH)
 
     def _margin(self, z: FloatArray) -> FloatArray:
@@ -480,6 +489,14 @@ def write_hand_masks(folder: str | Path, hands: HandMasks) -> None:
     folder.mkdir(parents=True, exist_ok=True)
     for frame, png in zip(hands.frames, hands.png):
         (folder / f"{int(frame):06d}.png").write_bytes(png)
+
+
+def _padded(image: np.ndarray, outside: float) -> np.ndarray:
+    """(h*w + 1,) ``image`` flat, then ``outside``."""
+    flat = np.empty(image.size + 1, dtype=image.dtype)
+    flat[:-1] = image.ravel()
+    flat[-1] = outside
+    return flat
 
 
 def _drop_small(mask: BoolArray, min_area: float) -> BoolArray:
