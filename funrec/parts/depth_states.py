@@ -247,9 +247,11 @@ def _add_arrival(cost: FloatArray, seeing: BoolArray, T_grid: FloatArray, arriva
     for frame, p_world in zip(arrival.frames, arrival.p_world, strict=True):
         if len(p_world) < config.min_points:
             continue
-        back = p_world[None] @ np.transpose(R_inv, (0, 2, 1)) + t_inv[:, None, :]  # (G, N, 3); einsum is 20x slower
+        # (G, 3, 3) @ (3, N): the same bits as (N, 3) @ (G, 3, 3)^T (checked on 1-4097 points), a third
+        # of its time at 2,000 points; einsum is 20x slower
+        back = R_inv @ p_world.T + t_inv[:, :, None]  # (G, 3, N)
         arrived, _ = _frame_cost(arrival.depth_m, arrival.K, arrival.T_camera_world,
-                                 np.ascontiguousarray(np.moveaxis(back, -1, 0)), None, config)
+                                 np.ascontiguousarray(np.moveaxis(back, 1, 0)), None, config)
         w = arrival.weight if seeing[frame] else 1.0
         cost[frame] = (1.0 - w) * cost[frame] + w * arrived
         seeing[frame] = True
