@@ -277,9 +277,16 @@ def _contact_votes(p_surface: FloatArray, held: list[_Touch], config: Affordance
     """(N,) contact vote of each surface point: summed over the held frames, 1 - d / contact
     distance for the distance d to the nearest far-end hand point (0 beyond)."""
     votes = np.zeros(len(p_surface))
+    reach = config.contact_distance_m
     for touch in held:
-        distance, _ = cKDTree(touch.p_part).query(p_surface, distance_upper_bound=config.contact_distance_m)
-        votes += np.where(distance < config.contact_distance_m, 1.0 - distance / config.contact_distance_m, 0.0)
+        if len(touch.p_part) == 0:
+            continue
+        # Only the surface points in the box of the hand points grown by the contact distance can
+        # be near one: the others' vote is 0, so they are not queried (the same votes).
+        low, high = touch.p_part.min(axis=0) - 1.001 * reach, touch.p_part.max(axis=0) + 1.001 * reach
+        near = np.flatnonzero(np.all((p_surface >= low) & (p_surface <= high), axis=1))
+        distance, _ = cKDTree(touch.p_part).query(p_surface[near], distance_upper_bound=reach)
+        votes[near] += np.where(distance < reach, 1.0 - distance / reach, 0.0)
     return votes
 
 
