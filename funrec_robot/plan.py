@@ -26,6 +26,7 @@ from funrec_robot.feasibility import (
     dynamic_limits,
     falls_to,
     first_blocked_state,
+    holding_load,
     resting_force,
     resting_state,
 )
@@ -463,11 +464,18 @@ def _timed(
     q_path = configs["path"]
     check_time_limit("timing (retreat)")
     retreat_path = configs.get("retreat_path")
-    if retreat_path is not None and len(retreat_path) >= 3:
+    if retreat_path is None or len(retreat_path) < 3:
+        retreat_path = np.array([q_path[-1], configs["retreat"]])
+    # At the shares of what holding the arm there leaves of each effort limit: at the end of a path the arm may
+    # be loaded near its limits (Fetch's forearm roll held 27 of its 29.35 N m against its spring and gravity on
+    # light_harsh_rev_wall_00, and a retreat at the full limits asked 33 N m).
+    v_back, a_back = dynamic_limits(robot, model, config.effort_share_damping, config.effort_share_inertia,
+                                    np.abs(holding_load(robot, model, retreat_path)).max(axis=0))
+    if len(retreat_path) >= 3:
         # Along the IK's steps straight back from the handle, as the handle path is timed.
-        retreat = retime_path(retreat_path, v, a, rc)
+        retreat = retime_path(retreat_path, v_back, a_back, rc)
     else:
-        retreat = point_to_point(q_path[-1], configs["retreat"], v, a, rc)
+        retreat = point_to_point(retreat_path[0], retreat_path[-1], v_back, a_back, rc)
     if handle.final_state is not None:
         # The released part rests on the open fingers until they have slid out from under it.
         retreat = _slowed(retreat, 1.0 / config.falling_retreat_scale, rc.dt)
