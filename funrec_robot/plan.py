@@ -447,7 +447,11 @@ def _timed(
     check_time_limit("timing (approach)")
     approach = [approach_move(robot, model, q0, q1, config, config.approach_scale) for q0, q1 in moves[:-1]]
     approach.append(_hold(moves[-1][0], config.pregrasp_dwell, rc.dt))
-    approach.append(approach_move(robot, model, *moves[-1], config, config.final_approach_scale))
+    final_path = configs.get("final_approach_path")
+    if final_path is None:
+        approach.append(approach_move(robot, model, *moves[-1], config, config.final_approach_scale))
+    else:  # IK steps straight onto the handle (``whole_body._straight_approach``), timed as the handle path is
+        approach.append(retime_path(final_path, config.final_approach_scale * v, config.final_approach_scale * a, rc))
     # The part state rides along as an extra path coordinate limited to the handle's speed and acceleration.
     radius = 1.0
     if task.joint_type == "revolute":
@@ -534,6 +538,7 @@ def _provenance(
             "opening": grasp.opening,
             "release_command": solution.get("released"),
             "approach_vias": len(configs["approach"]) - 3,
+            "straight_approach": configs.get("final_approach_path") is not None,
             "handle_axis_world": None if task.handle_axis_world is None else np.round(task.handle_axis_world, 6).tolist(),
             "approach_world": np.round(task.approach_world, 6).tolist(),
         },
