@@ -26,6 +26,7 @@ from funrec_robot.feasibility import (
     dynamic_limits,
     falls_to,
     first_blocked_state,
+    holding_load,
     resting_force,
     resting_state,
 )
@@ -446,7 +447,11 @@ def _timed(
     check_time_limit("timing (approach)")
     approach = [approach_move(robot, model, q0, q1, config, config.approach_scale) for q0, q1 in moves[:-1]]
     approach.append(_hold(moves[-1][0], config.pregrasp_dwell, rc.dt))
-    approach.append(approach_move(robot, model, *moves[-1], config, config.final_approach_scale))
+    final_path = configs.get("final_approach_path")
+    if final_path is None:
+        approach.append(approach_move(robot, model, *moves[-1], config, config.final_approach_scale))
+    else:  # IK steps straight onto the handle (``whole_body._straight_approach``), timed as the handle path is
+        approach.append(retime_path(final_path, config.final_approach_scale * v, config.final_approach_scale * a, rc))
     # The part state rides along as an extra path coordinate limited to the handle's speed and acceleration.
     radius = 1.0
     if task.joint_type == "revolute":
@@ -463,11 +468,18 @@ def _timed(
     q_path = configs["path"]
     check_time_limit("timing (retreat)")
     retreat_path = configs.get("retreat_path")
-    if retreat_path is not None and len(retreat_path) >= 3:
+    if retreat_path is None or len(retreat_path) < 3:
+        retreat_path = np.array([q_path[-1], configs["retreat"]])
+    # At the shares of what holding the arm there leaves of each effort limit: at the end of a path the arm may
+    # be loaded near its limits (Fetch's forearm roll held 27 of its 29.35 N m against its spring and gravity on
+    # light_harsh_rev_wall_00, and a retreat at the full limits asked 33 N m).
+    v_back, a_back = dynamic_limits(robot, model, config.effort_share_damping, config.effort_share_inertia,
+                                    np.abs(holding_load(robot, model, retreat_path)).max(axis=0))
+    if len(retreat_path) >= 3:
         # Along the IK's steps straight back from the handle, as the handle path is timed.
-        retreat = retime_path(retreat_path, v, a, rc)
+        retreat = retime_path(retreat_path, v_back, a_back, rc)
     else:
-        retreat = point_to_point(q_path[-1], configs["retreat"], v, a, rc)
+        retreat = point_to_point(retreat_path[0], retreat_path[-1], v_back, a_back, rc)
     if handle.final_state is not None:
         # The released part rests on the open fingers until they have slid out from under it.
         retreat = _slowed(retreat, 1.0 / config.falling_retreat_scale, rc.dt)
@@ -526,6 +538,7 @@ def _provenance(
             "opening": grasp.opening,
             "release_command": solution.get("released"),
             "approach_vias": len(configs["approach"]) - 3,
+            "straight_approach": configs.get("final_approach_path") is not None,
             "handle_axis_world": None if task.handle_axis_world is None else np.round(task.handle_axis_world, 6).tolist(),
             "approach_world": np.round(task.approach_world, 6).tolist(),
         },

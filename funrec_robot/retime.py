@@ -39,6 +39,15 @@ class RetimeConfig:
     """Ruckig jerk limit as a multiple of each joint's acceleration limit, 1/s."""
     limit_tolerance: float = 1e-6
     """Relative excess over a limit still accepted on the dense check (round-off)."""
+    overshoot_share: float = 0.5
+    """The clamped cubic through the waypoints may leave the range of a coordinate's two waypoints on a piece by this
+    share of the coordinate's step there (plus ``overshoot_margin``); where it leaves it by more, the cubic is
+    redone on evenly spaced knots, and where that leaves it too, the path is interpolated shape-preservingly (PCHIP
+    slopes, no overshoot, timed slower)."""
+    overshoot_margin: float = 0.05
+    """... plus this much, m or rad: the cubic's swings seen on paths that pass their checks are kept (TIAGo's arm
+    joint 0.031 rad beyond two waypoints 0.011 apart on dark_rev_glass_wall_00, a base slide of Fetch's 14 mm), its
+    gross ones not (Fetch's door state 0.177 rad below closed)."""
 
 
 @dataclass(frozen=True)
@@ -101,6 +110,19 @@ def _path_parameter(waypoints: FloatArray, v_max: FloatArray) -> FloatArray:
     return s / s[-1]
 
 
+def _overshooting_pieces(path, ss: FloatArray, waypoints: FloatArray, config: RetimeConfig) -> np.ndarray:  # noqa: ANN001
+    """(N - 1,) True for the spline pieces between waypoints on which some coordinate leaves the range of its two
+    waypoints by more than ``overshoot_share`` of its step plus ``overshoot_margin`` (sampled at 8 inner points)."""
+    u = np.linspace(0.0, 1.0, 10)[1:-1]
+    s = (ss[:-1, None] + np.diff(ss)[:, None] * u).ravel()
+    q = np.asarray(path(s)).reshape(len(ss) - 1, len(u), -1)
+    step = np.abs(np.diff(waypoints, axis=0))[:, None, :]
+    room = config.overshoot_share * step + config.overshoot_margin
+    low = np.minimum(waypoints[:-1], waypoints[1:])[:, None, :] - room
+    high = np.maximum(waypoints[:-1], waypoints[1:])[:, None, :] + room
+    return np.any((q < low) | (q > high), axis=(1, 2))
+
+
 def retime_path(
     waypoints: npt.ArrayLike, v_max: npt.ArrayLike, a_max: npt.ArrayLike, config: RetimeConfig = RetimeConfig()
 ) -> Trajectory:
@@ -135,6 +157,22 @@ def retime_path(
     waypoints = waypoints[moved]
     ss = _path_parameter(waypoints, v_max)
     path = toppra.SplineInterpolator(ss, waypoints, bc_type="clamped")
+    if _overshooting_pieces(path, ss, waypoints, config).any():
+        # A clamped cubic through unevenly spaced waypoints can swing far outside them: a door's state, timed as a
+        # coordinate of Fetch's handle path, went 0.14 rad below its closed state where one step turned the slow
+        # wrist far and the next barely (the hand drove the door into its stop, 274 N). First the cubic on evenly
+        # spaced knots (the IK's waypoints are even steps of the handle); where that swings out too, cubic Hermite
+        # pieces with PCHIP's slopes (zero at both ends, as clamped), which stay within each piece's waypoints but
+        # bend sharply at them and are timed slower (Fetch's 12 cm retreat from geo_angled_rev_cabinet_00: 96 s).
+        ss = np.linspace(0.0, 1.0, len(waypoints))
+        path = toppra.SplineInterpolator(ss, waypoints, bc_type="clamped")
+        if _overshooting_pieces(path, ss, waypoints, config).any():
+            from scipy.interpolate import PchipInterpolator
+            from toppra.simplepath import SimplePath
+
+            slopes = PchipInterpolator(ss, waypoints, axis=0).derivative()(ss)
+            slopes[[0, -1]] = 0.0
+            path = SimplePath(ss, waypoints, slopes)
     constraints = [
         toppra.constraint.JointVelocityConstraint(np.column_stack([-v_max, v_max])),
         toppra.constraint.JointAccelerationConstraint(np.column_stack([-a_max, a_max])),

@@ -106,22 +106,27 @@ def _corners(model: mujoco.MjModel, data: mujoco.MjData, geoms: np.ndarray) -> F
     return box_corners(*geom_boxes(model, data, geoms)).reshape(-1, 3)
 
 
-_MEASURED: dict[tuple, RobotGeometry] = {}
-"""Geometry already measured, by robot file, its modification time, home pose and hand (compiling a robot with
-meshes takes most of a second)."""
+_MEASURED: dict[tuple, tuple[mujoco.MjModel, dict[bytes, RobotGeometry]]] = {}
+"""By robot file, its modification time and hand: the robot's own compiled model (compiling a robot with meshes
+takes 0.03-0.15 s, more the first time) and the geometry already measured on it, by home pose (a robot with a lift
+is measured again at the home its lift takes for each handle height: on the one compiled model, which the home
+pose does not enter)."""
 
 
 def measure_robot(robot: RobotDescription) -> RobotGeometry:
     """Measure a robot on its own MuJoCo model at home, base joints at zero, finger joints at the open command."""
-    key = (str(robot.yaml_path), robot.yaml_path.stat().st_mtime_ns if robot.yaml_path.is_file() else 0, robot.q_home.tobytes(),
+    key = (str(robot.yaml_path), robot.yaml_path.stat().st_mtime_ns if robot.yaml_path.is_file() else 0,
            robot.T_ee_grasp.tobytes(), robot.gripper, robot.base_height)
     if key not in _MEASURED:
-        _MEASURED[key] = _measure(robot)
-    return _MEASURED[key]
+        _MEASURED[key] = (build_mujoco_model(robot), {})
+    model, by_home = _MEASURED[key]
+    home = robot.q_home.tobytes()
+    if home not in by_home:
+        by_home[home] = _measure(robot, model)
+    return by_home[home]
 
 
-def _measure(robot: RobotDescription) -> RobotGeometry:
-    model = build_mujoco_model(robot)
+def _measure(robot: RobotDescription, model: mujoco.MjModel) -> RobotGeometry:
     data = mujoco.MjData(model)
     reset_to_home(robot, model, data)
     indices = robot_indices(robot, model)
