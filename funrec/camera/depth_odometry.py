@@ -280,7 +280,9 @@ def _bilinear(images: tuple[np.ndarray, ...], u: FloatArray, v: FloatArray) -> l
     bits of scipy's ``map_coordinates(image, [v, u], order=1, mode="nearest")`` (the corners' values
     times their v and u weights, summed in its order, in float64, returned in the image's dtype) for
     every point inside the image (points outside are clamped to its edge), at a third of its time,
-    the corner weights shared by the images."""
+    the corner weights shared by the images. Written here because no library lookup fits: scipy's
+    computes the weights again per image, and OpenCV's ``remap`` rounds sub-pixel positions to
+    1/32 pixel (other bits, another trajectory)."""
     h, w = images[0].shape
     u, v = np.clip(u, 0, w - 1), np.clip(v, 0, h - 1)
     u0, v0 = np.floor(u), np.floor(v)

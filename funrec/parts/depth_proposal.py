@@ -25,7 +25,7 @@ from scipy.spatial.transform import Rotation
 
 from funrec.camera.tracking import CameraTrajectory
 from funrec.formats.capture import Capture
-from funrec.geometry.camera import backproject
+from funrec.geometry.camera import backproject, project
 from funrec.geometry.joints import joint_transforms
 from funrec.geometry.transforms import invert_transform, transform_points
 from funrec.parts.depth_states import Arrival, DepthStateConfig, depth_fit, depth_states
@@ -463,20 +463,17 @@ def _grown_normal(views: _Views, points: FloatArray, normal: FloatArray, config:
     """The front's unit normal (sign of ``normal``) refitted, ``config.front_growth_rounds`` times, on the
     pixels of frame 0's full-resolution depth (hand left out) that lie within ``config.plane_tolerance_m``
     of the current plane in the connected regions that hold the front's ``points`` (N, 3), world frame."""
-    depth = views.depth0_m
+    depth, K = views.depth0_m, views.capture.intrinsics.K
     H, W = depth.shape
     T_camera_world = invert_transform(views.trajectory.T_world_camera[0])
-    p_camera = backproject(depth, views.capture.intrinsics.K).reshape(H, W, 3)
+    p_camera = backproject(depth, K).reshape(H, W, 3)
     valid = depth > 0
     hand = None if views.hand is None else views.hand(0)
     if hand is not None:
         valid &= ~hand
     seeds = transform_points(T_camera_world, points)
-    K = views.capture.intrinsics.K
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = np.rint(K[0, 0] * seeds[:, 0] / seeds[:, 2] + K[0, 2])
-        v = np.rint(K[1, 1] * seeds[:, 1] / seeds[:, 2] + K[1, 2])
-    inside = (seeds[:, 2] > 0) & (u >= 0) & (u < W) & (v >= 0) & (v < H)
+    u, v = np.rint(project(seeds, K)[0]).T  # NaN behind the camera
+    inside = (u >= 0) & (u < W) & (v >= 0) & (v < H)
     rows, cols = v[inside].astype(int), u[inside].astype(int)
     n_camera, centre = T_camera_world[:3, :3] @ normal, seeds.mean(0)
     for _ in range(config.front_growth_rounds):
