@@ -405,3 +405,27 @@ def test_a_panel_that_slides_along_itself_stays_in_the_model() -> None:
     on_panel = (np.abs(kept[1] - 2.0) < 0.01) & (kept[0] > -0.01) & (kept[0] < 0.61)
     assert _covered(kept, *panel[0][:3]) > 0.9, _covered(kept, *panel[0][:3])
     assert (~on_panel).mean() < 0.05, f"{(~on_panel).sum()} of {kept.shape[1]} kept voxels lie off the panel"
+
+
+def test_a_part_region_keeps_only_what_its_evidence_reaches_without_a_depth_jump() -> None:
+    """A door seen edge-on is a near strip with part evidence; the region it was decided in also
+    holds the cabinet's inside 30 cm behind it. A plain front with evidence on one column carries a
+    handle 3 cm proud (2.5 % of the depth: a jump at the default 2 %) and a missing reading. The
+    inside goes; the strip, the front, its handle and the missing reading stay."""
+    from funrec.surfaces.segmentation import _attached
+
+    depth = np.full((40, 60), 1.8, dtype=np.float32)
+    depth[:, 10:14] = 1.5
+    depth[:, 30:] = 1.2
+    depth[18:22, 40:50] = 1.17
+    depth[5, 35] = 0.0
+    part = np.zeros_like(depth, dtype=bool)
+    part[:, 10:28] = True
+    part[:, 30:] = True
+    seeds = np.zeros_like(part)
+    seeds[:, 11] = True
+    seeds[:, 58] = True
+    kept = _attached(part, seeds, depth, SegmentationConfig().depth_jump_relative)
+    assert kept[:, 10:14].all() and not kept[:, 14:28].any()
+    assert kept[:, 30:].all()
+    assert not kept[:, :10].any() and not kept[:, 28:30].any()

@@ -75,7 +75,7 @@ def test_undecided_pixels_join_the_part_only_within_fine_regions_that_hold_part_
     static_px = np.zeros((h, w), dtype=bool)
     static_px[::3, 70::3] = True
     none = np.zeros((h, w), dtype=np.int64)
-    part, known = _keyframe_mask(view, part_px, static_px, none, none, SegmentationConfig())
+    part, known = _keyframe_mask(view, view.depth_m, part_px, static_px, none, none, SegmentationConfig())
     assert part[:, :20].all()
     assert not part[:, 20:].any()
     assert not known[:, 20:70].any()
