@@ -121,3 +121,14 @@ def test_ruckig_is_never_given_intermediate_waypoints(monkeypatch: pytest.Monkey
 def test_no_motion_gives_a_single_rest_sample() -> None:
     trajectory = point_to_point([0.3, 0.1], [0.3, 0.1], [1.0, 1.0], [1.0, 1.0])
     assert trajectory.duration == 0.0 and trajectory.q.shape == (1, 2)
+
+
+def test_a_step_too_small_for_toppra_is_dropped_and_the_ends_stay_exact() -> None:
+    """Hypothesis found it: a 0.1 mrad step before a 0.5 rad one at a right angle leaves toppra no
+    controllable set on any interpolation; the tiny inner waypoint (a thousandth of the travel) goes."""
+    waypoints = np.array([[0.0, 0.0, 0.0], [1e-4, 0.0, 0.0], [1e-4, 0.5, 0.0]])
+    trajectory = retime_path(waypoints, V_MAX, A_MAX)
+    use = limit_use(trajectory.t, trajectory.qd, V_MAX, A_MAX)
+    assert use.velocity <= 1.0 + LIMIT_TOL
+    assert use.acceleration <= 1.0 + FD_TOL
+    np.testing.assert_allclose(trajectory.q[[0, -1]], waypoints[[0, -1]], atol=1e-9)
