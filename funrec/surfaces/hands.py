@@ -341,22 +341,68 @@ class _Detector:
         under the static hypothesis and under the motion of every part whose state differs
         between the two frames, and violates only if no hypothesis explains it: part pixels
         outside the part's masks (its masks cover the tracked frames only) are then no hand.
+
+        Pixels beyond reach (``max_range_m``) are tested only when the frame has seeds: seeds lie
+        within reach, growth only reaches pixels within reach (:meth:`depth_masks`), and the static
+        pixels beyond reach count only in the scene colour statistics of frames with seeds. Each
+        pixel is tested on its own, so the masks are those of testing every pixel, at about half
+        the cost (most of a room is beyond arm's reach, and about half the frames show no hand).
         """
         cfg = self.config
         w, h = self.size
-        z = self.depth(frame).ravel().astype(np.float64)
+        depth = self.depth(frame)
+        z = depth.ravel().astype(np.float64)
         valid = z > cfg.min_range_m
         p_camera = self.rays_by_row * z  # (3, h*w): one contiguous row per coordinate
         labels = self.labels(frame)
-        # Each label's pixels (static scene, then part k + 1's mask) and their points, once per frame.
-        groups = [(label, group, p_camera[:, group]) for label in range(len(self.T_world_part) + 1)
-                  if len(group := np.flatnonzero((labels == label) & valid))]
-        margin_z = self._margin(z)
         count = np.zeros(h * w, dtype=np.int32)
         agree = np.zeros(h * w, dtype=np.int32)
         # Per side (past references, future references): violated by one / tested by one.
         side_violated = np.zeros((2, h * w), dtype=bool)
         side_tested = np.zeros((2, h * w), dtype=bool)
+        reach = valid & (np.linalg.norm(p_camera, axis=0) < cfg.max_range_m)
+        near = reach | (depth.ravel() < cfg.max_range_m)  # as depth_masks compares them
+
+        def test(pixels: IntArray) -> BoolArray:
+            """Test ``pixels``; (h*w,) the pixels violating so far."""
+            count[pixels], side_violated[:, pixels], side_tested[:, pixels], agree[pixels] = self._tests(
+                frame, pixels, z, p_camera, labels)
+            violating = count > 0
+            if cfg.two_sided:
+                violating &= np.all(side_violated | ~side_tested, axis=0)
+            return violating
+
+        violating = test(np.flatnonzero(valid & near))
+        seeds = (violating & reach).reshape(h, w).astype(np.uint8)
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (cfg.seed_opening_px, cfg.seed_opening_px))
+        seeds = cv2.morphologyEx(seeds, cv2.MORPH_OPEN, kernel)
+        seeds = _drop_small(seeds > 0, cfg.min_component_fraction * w * h)
+        if seeds.any():  # the pixels beyond reach are needed only then (see above)
+            violating = test(np.flatnonzero(valid & ~near))
+        # With two_sided, a pixel that violates one side only (a part whose motion is estimated
+        # wrongly) is static where it agrees with enough references: it must not be grown into.
+        static = ((agree >= cfg.min_static_references) & ~(violating if cfg.two_sided else count > 0)).reshape(h, w)
+        return seeds, static
+
+    def _tests(self, frame: int, pixels: IntArray, z: FloatArray, p_camera: FloatArray, labels: IntArray
+               ) -> tuple[IntArray, BoolArray, BoolArray, IntArray]:
+        """The reference tests of some valid pixels of a frame: (n,) flat ``pixels`` of the frame's
+        (h*w,) depths ``z``, (3, h*w) points ``p_camera`` and (h*w,) labels (:meth:`labels`).
+
+        Returns:
+            (n,) references violated, (2, n) violated by a past / future one, (2, n) tested by a
+            past / future one, (n,) references agreed with (static evidence).
+        """
+        n = len(pixels)
+        labels, z = labels[pixels], z[pixels]
+        # Each label's pixels (static scene, then part k + 1's mask) and their points, once per call.
+        groups = [(label, group, p_camera[:, pixels[group]]) for label in range(len(self.T_world_part) + 1)
+                  if len(group := np.flatnonzero(labels == label))]
+        margin_z = self._margin(z)
+        count = np.zeros(n, dtype=np.int32)
+        agree = np.zeros(n, dtype=np.int32)
+        side_violated = np.zeros((2, n), dtype=bool)
+        side_tested = np.zeros((2, n), dtype=bool)
         T_world_frame = self.T_world_camera[frame]
         for offset in self.offsets:
             ref = frame + offset
@@ -365,9 +411,9 @@ class _Detector:
             T_ref_world = self.T_camera_world[ref]
             T_move = [T_world_part[ref] @ invert_transform(T_world_part[frame]) for T_world_part in self.T_world_part]
             moved = [k for k, T in enumerate(T_move) if not np.allclose(T, np.eye(4), atol=_SAME_POSE)]
-            violated = np.zeros(h * w, dtype=bool)
-            ok = np.zeros(h * w, dtype=bool)
-            consistent = np.zeros(h * w, dtype=bool)
+            violated = np.zeros(n, dtype=bool)
+            ok = np.zeros(n, dtype=bool)
+            consistent = np.zeros(n, dtype=bool)
             for label, group, p_group in groups:
                 own = T_ref_world @ (T_world_frame if label == 0 else T_move[label - 1] @ T_world_frame)
                 z_ref, seen, exact, tested = self._reproject(p_group, own, ref)
@@ -387,21 +433,10 @@ class _Detector:
             # Static evidence needs the hypothesis to agree where the camera-rigid one (same
             # pixel, same depth) does not: the arm near the shoulder moves with the head and
             # agrees with both, so it never counts as scene.
-            same_pixel = self.depth(ref).ravel()
+            same_pixel = self.depth_flat(ref)[pixels]
             rigid = (same_pixel > 0) & (np.abs(same_pixel - z) < margin_z)
             agree += ok & consistent & ~violated & ~rigid
-        reach = valid & (np.linalg.norm(p_camera, axis=0) < cfg.max_range_m)
-        violating = count > 0
-        if cfg.two_sided:
-            violating &= np.all(side_violated | ~side_tested, axis=0)
-        seeds = (violating & reach).reshape(h, w).astype(np.uint8)
-        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (cfg.seed_opening_px, cfg.seed_opening_px))
-        seeds = cv2.morphologyEx(seeds, cv2.MORPH_OPEN, kernel)
-        seeds = _drop_small(seeds > 0, cfg.min_component_fraction * w * h)
-        # With two_sided, a pixel that violates one side only (a part whose motion is estimated
-        # wrongly) is static where it agrees with enough references: it must not be grown into.
-        static = ((agree >= cfg.min_static_references) & ~(violating if cfg.two_sided else count > 0)).reshape(h, w)
-        return seeds, static
+        return count, side_violated, side_tested, agree
 
     # -- pass 2: colour growth -------------------------------------------------------------
     def chroma_bins(self, rgb: UInt8Array) -> tuple[IntArray, BoolArray]:
