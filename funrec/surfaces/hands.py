@@ -19,6 +19,7 @@ from funrec.formats.capture import Capture
 from funrec.formats.twin import ArticulatedPart
 from funrec.geometry.joints import joint_transforms
 from funrec.geometry.transforms import invert_transform
+from funrec.parallel import in_order
 from funrec.surfaces.segmentation import EncodedMasks, PartMasks, encode_mask
 from funrec.typed import BoolArray, Float32Array, FloatArray, IntArray, UInt8Array
 
@@ -107,6 +108,9 @@ class HandConfig:
     skin-coloured furniture that the hand touches without a depth step."""
     closing_px: int = 5
     """Side of the final morphological closing (working resolution), filling gaps at fingers."""
+    threads: int = 2
+    """Frames worked on at once, in threads (the whole-image numpy and OpenCV operations release
+    the GIL, so a second core shares the work); the masks do not depend on it. 1: one at a time."""
 
     def __post_init__(self) -> None:
         if self.work_width_px < 16 or not self.reference_offsets_s or 0.0 in self.reference_offsets_s:
@@ -115,6 +119,8 @@ class HandConfig:
             raise ValueError(f"HandConfig needs 0 < skin_probability < 1 and colour_bins >= 4, got {self}")
         if self.reference_window_px % 2 == 0 or self.seed_opening_px % 2 == 0 or self.closing_px % 2 == 0:
             raise ValueError("HandConfig window, opening and closing sizes must be odd")
+        if self.threads < 1:
+            raise ValueError(f"HandConfig needs threads >= 1, got {self.threads}")
 
 
 @dataclass(frozen=True)
@@ -255,23 +261,26 @@ class _Detector:
 
     def depth_flat(self, frame: int) -> Float32Array:
         """(h*w + 1,) :meth:`depth` flat, then 0 (no reading) for pixels outside the image."""
-        if frame not in self._depth:
-            self._depth[frame] = _padded(self._resize(self.capture.depth_m(frame).astype(np.float32)), 0.0)
-        return self._depth[frame]
+        depth = self._depth.get(frame)
+        if depth is None:  # two threads may both decode a frame: the same values
+            depth = self._depth[frame] = _padded(self._resize(self.capture.depth_m(frame).astype(np.float32)), 0.0)
+        return depth
 
     def min_depth(self, frame: int) -> Float32Array:
         """(h*w + 1,) min-filtered depth of a reference frame, flat, holes at ``_NO_DEPTH``, then
         ``_NO_DEPTH`` for pixels outside the image."""
-        if frame not in self._min_depth:
+        near = self._min_depth.get(frame)
+        if near is None:
             d = self.depth(frame)
             size = self.config.reference_window_px
-            self._min_depth[frame] = _padded(cv2.erode(np.where(d > 0, d, _NO_DEPTH).astype(np.float32), np.ones((size, size), np.uint8)), _NO_DEPTH)
-        return self._min_depth[frame]
+            near = self._min_depth[frame] = _padded(cv2.erode(np.where(d > 0, d, _NO_DEPTH).astype(np.float32), np.ones((size, size), np.uint8)), _NO_DEPTH)
+        return near
 
     def evict(self, before: int) -> None:
+        """Forget the depth of frames before ``before`` (no frame worked on still needs them)."""
         for cache in (self._depth, self._min_depth):
-            for frame in [f for f in cache if f < before]:
-                del cache[frame]
+            for frame in [f for f in list(cache) if f < before]:  # list(): one step, while threads add frames
+                cache.pop(frame, None)
 
     def labels(self, frame: int) -> IntArray:
         """(h*w,) 0 for static pixels, k + 1 for pixels of part k's mask."""
@@ -488,17 +497,27 @@ class _Detector:
         # Pass 1's masks for pass 2, packed 8 pixels a byte: lossless like PNG at a 30th of its
         # encoding time (PNG encoding took 8 of the 123 CPU-s of plain_rev_cabinet_right_00).
         seed_bits, static_bits, near_bits, growable_bits = [], [], [], []
-        for frame in range(F):
+
+        def first_pass(frame: int) -> tuple[list[UInt8Array], tuple[IntArray, IntArray] | None]:
+            """A frame's packed seed, static, near and growable masks, and its skin and scene chroma counts."""
             seeds, static = self.violations(frame)
             near, growable = self.depth_masks(frame)
-            for store, mask in ((seed_bits, seeds), (static_bits, static), (near_bits, near), (growable_bits, growable)):
-                store.append(np.packbits(mask))
+            counts = None
             if seeds.any():
                 chroma, usable = self.chroma_bins(self.capture.rgb(frame))
                 core = cv2.erode(seeds.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
-                hist_skin += np.bincount(chroma[core & usable], minlength=bins * bins)
-                hist_scene += np.bincount(chroma[static & usable], minlength=bins * bins)
-            self.evict(frame + min(self.offsets))
+                counts = (np.bincount(chroma[core & usable], minlength=bins * bins),
+                          np.bincount(chroma[static & usable], minlength=bins * bins))
+            return [np.packbits(mask) for mask in (seeds, static, near, growable)], counts
+
+        # handed out in frame order: the histograms sum in the same order, and the depth window moves on
+        for frame, (packed, counts) in enumerate(in_order(first_pass, range(F), cfg.threads, "funrec-hands")):
+            for store, bits in zip((seed_bits, static_bits, near_bits, growable_bits), packed, strict=True):
+                store.append(bits)
+            if counts is not None:
+                hist_skin += counts[0]
+                hist_scene += counts[1]
+            self.evict(frame + 1 + min(self.offsets))  # the frames after it are worked on: their window is kept
             if progress is not None:
                 progress(frame + 1, 2 * F)
         skin = _skin_probability(hist_skin, hist_scene, cfg.min_colour_samples * self.size[0] * self.size[1], cfg)
@@ -506,12 +525,16 @@ class _Detector:
         self._depth.clear()
         self._min_depth.clear()
         H, W = self.capture.intrinsics.height, self.capture.intrinsics.width
-        png = []
-        for frame in range(F):
+
+        def second_pass(frame: int) -> bytes:
             mask = self.grow(frame, *(self._unpack(store[frame]) for store in (seed_bits, static_bits, near_bits, growable_bits)), skin)
             if mask.shape != (H, W):
                 mask = cv2.resize(mask.astype(np.float32), (W, H), interpolation=cv2.INTER_LINEAR) > 0.5
-            png.append(encode_mask(mask))
+            return encode_mask(mask)
+
+        png = []
+        for frame, encoded in enumerate(in_order(second_pass, range(F), cfg.threads, "funrec-hands")):
+            png.append(encoded)
             if progress is not None:
                 progress(F + frame + 1, 2 * F)
         return HandMasks(np.arange(F, dtype=np.int64), tuple(png), H, W, "detected", colour_model=skin is not None)
