@@ -11,6 +11,7 @@ away from the camera are scored as the hidden face of a thin panel (a door leaf,
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,6 +21,7 @@ from funrec.camera.tracking import CameraTrajectory
 from funrec.formats.capture import Capture
 from funrec.geometry.joints import joint_transforms
 from funrec.geometry.transforms import invert_transform
+from funrec.parallel import in_order
 from funrec.typed import BoolArray, FloatArray, IntArray
 
 logger = logging.getLogger(__name__)
@@ -78,6 +80,9 @@ class DepthStateConfig:
     exceeds this; nearer to edge-on, the ordinary rule applies."""
     normal_radius_m: float = 0.2
     """Neighbourhood radius of the part points whose plane (PCA) gives a point's normal."""
+    threads: int = 2
+    """Frames scored at once, in threads (whole-array numpy releases the GIL, so a second core
+    shares the work); the states do not depend on it. 1: one frame at a time."""
 
 
 @dataclass(frozen=True)
@@ -207,9 +212,13 @@ def _search(capture: Capture, trajectory: CameraTrajectory, joint_type: str, axi
     K = capture.intrinsics.K
     cost = np.zeros((F, len(grid)))
     seen = np.zeros(F, dtype=int)
-    for frame in range(F):
-        cost[frame], seen[frame] = _frame_cost(capture.depth_m(frame), K, invert_transform(trajectory.T_world_camera[frame]),
-                                               p_rows, n_rows, config)
+
+    def frame_costs(frames: IntArray) -> None:  # each frame's own row: threads write apart
+        for frame in frames:
+            cost[frame], seen[frame] = _frame_cost(capture.depth_m(frame), K, invert_transform(trajectory.T_world_camera[frame]),
+                                                   p_rows, n_rows, config)
+
+    _in_threads(frame_costs, F, config.threads)
     seeing = seen >= config.min_points
     cost[~seeing] = 0.0
     if arrival is not None:
@@ -245,17 +254,30 @@ def _add_arrival(cost: FloatArray, seeing: BoolArray, T_grid: FloatArray, arriva
     fewer than ``config.min_points`` arrived points keep their cost."""
     R_inv = np.transpose(T_grid[:, :3, :3], (0, 2, 1))
     t_inv = -np.einsum("gij,gj->gi", R_inv, T_grid[:, :3, 3])
-    for frame, p_world in zip(arrival.frames, arrival.p_world, strict=True):
-        if len(p_world) < config.min_points:
-            continue
-        # (G, 3, 3) @ (3, N): the same bits as (N, 3) @ (G, 3, 3)^T (checked on 1-4097 points), a third
-        # of its time at 2,000 points; einsum is 20x slower
-        back = R_inv @ p_world.T + t_inv[:, :, None]  # (G, 3, N)
-        arrived, _ = _frame_cost(arrival.depth_m, arrival.K, arrival.T_camera_world,
-                                 np.ascontiguousarray(np.moveaxis(back, 1, 0)), None, config)
-        w = arrival.weight if seeing[frame] else 1.0
-        cost[frame] = (1.0 - w) * cost[frame] + w * arrived
-        seeing[frame] = True
+
+    def blend(items: IntArray) -> None:  # each arrival frame's own row of cost and seeing: threads write apart
+        for frame, p_world in zip(np.asarray(arrival.frames)[items], (arrival.p_world[i] for i in items), strict=True):
+            if len(p_world) < config.min_points:
+                continue
+            # (G, 3, 3) @ (3, N): the same bits as (N, 3) @ (G, 3, 3)^T (checked on 1-4097 points), a third
+            # of its time at 2,000 points; einsum is 20x slower
+            back = R_inv @ p_world.T + t_inv[:, :, None]  # (G, 3, N)
+            arrived, _ = _frame_cost(arrival.depth_m, arrival.K, arrival.T_camera_world,
+                                     np.ascontiguousarray(np.moveaxis(back, 1, 0)), None, config)
+            w = arrival.weight if seeing[frame] else 1.0
+            cost[frame] = (1.0 - w) * cost[frame] + w * arrived
+            seeing[frame] = True
+
+    _in_threads(blend, len(arrival.frames), config.threads)
+
+
+def _in_threads(work: Callable[[IntArray], None], count: int, threads: int) -> None:
+    """``work(items)`` on ``threads`` interleaved shares of items 0 .. count - 1, at once in threads
+    (``_frame_cost`` is whole-array numpy, which releases the GIL: a second core shares it). Each
+    item's result is its own, so the shares give what one pass over all items gives."""
+    shares = [np.arange(start, count, threads) for start in range(min(threads, count))]
+    for _ in in_order(work, shares, threads, "funrec-depth-states"):
+        pass
 
 
 def _frame_cost(depth_m: FloatArray, K: FloatArray, T_camera_world: FloatArray, p_rows: FloatArray,
