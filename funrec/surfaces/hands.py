@@ -19,6 +19,7 @@ from funrec.formats.capture import Capture
 from funrec.formats.twin import ArticulatedPart
 from funrec.geometry.joints import joint_transforms
 from funrec.geometry.transforms import invert_transform
+from funrec.parallel import in_order
 from funrec.surfaces.segmentation import EncodedMasks, PartMasks, encode_mask
 from funrec.typed import BoolArray, Float32Array, FloatArray, IntArray, UInt8Array
 
@@ -107,6 +108,9 @@ class HandConfig:
     skin-coloured furniture that the hand touches without a depth step."""
     closing_px: int = 5
     """Side of the final morphological closing (working resolution), filling gaps at fingers."""
+    threads: int = 2
+    """Frames worked on at once, in threads (the whole-image numpy and OpenCV operations release
+    the GIL, so a second core shares the work); the masks do not depend on it. 1: one at a time."""
 
     def __post_init__(self) -> None:
         if self.work_width_px < 16 or not self.reference_offsets_s or 0.0 in self.reference_offsets_s:
@@ -115,6 +119,8 @@ class HandConfig:
             raise ValueError(f"HandConfig needs 0 < skin_probability < 1 and colour_bins >= 4, got {self}")
         if self.reference_window_px % 2 == 0 or self.seed_opening_px % 2 == 0 or self.closing_px % 2 == 0:
             raise ValueError("HandConfig window, opening and closing sizes must be odd")
+        if self.threads < 1:
+            raise ValueError(f"HandConfig needs threads >= 1, got {self.threads}")
 
 
 @dataclass(frozen=True)
@@ -255,23 +261,26 @@ class _Detector:
 
     def depth_flat(self, frame: int) -> Float32Array:
         """(h*w + 1,) :meth:`depth` flat, then 0 (no reading) for pixels outside the image."""
-        if frame not in self._depth:
-            self._depth[frame] = _padded(self._resize(self.capture.depth_m(frame).astype(np.float32)), 0.0)
-        return self._depth[frame]
+        depth = self._depth.get(frame)
+        if depth is None:  # two threads may both decode a frame: the same values
+            depth = self._depth[frame] = _padded(self._resize(self.capture.depth_m(frame).astype(np.float32)), 0.0)
+        return depth
 
     def min_depth(self, frame: int) -> Float32Array:
         """(h*w + 1,) min-filtered depth of a reference frame, flat, holes at ``_NO_DEPTH``, then
         ``_NO_DEPTH`` for pixels outside the image."""
-        if frame not in self._min_depth:
+        near = self._min_depth.get(frame)
+        if near is None:
             d = self.depth(frame)
             size = self.config.reference_window_px
-            self._min_depth[frame] = _padded(cv2.erode(np.where(d > 0, d, _NO_DEPTH).astype(np.float32), np.ones((size, size), np.uint8)), _NO_DEPTH)
-        return self._min_depth[frame]
+            near = self._min_depth[frame] = _padded(cv2.erode(np.where(d > 0, d, _NO_DEPTH).astype(np.float32), np.ones((size, size), np.uint8)), _NO_DEPTH)
+        return near
 
     def evict(self, before: int) -> None:
+        """Forget the depth of frames before ``before`` (no frame worked on still needs them)."""
         for cache in (self._depth, self._min_depth):
-            for frame in [f for f in cache if f < before]:
-                del cache[frame]
+            for frame in [f for f in list(cache) if f < before]:  # list(): one step, while threads add frames
+                cache.pop(frame, None)
 
     def labels(self, frame: int) -> IntArray:
         """(h*w,) 0 for static pixels, k + 1 for pixels of part k's mask."""
@@ -341,22 +350,68 @@ class _Detector:
         under the static hypothesis and under the motion of every part whose state differs
         between the two frames, and violates only if no hypothesis explains it: part pixels
         outside the part's masks (its masks cover the tracked frames only) are then no hand.
+
+        Pixels beyond reach (``max_range_m``) are tested only when the frame has seeds: seeds lie
+        within reach, growth only reaches pixels within reach (:meth:`depth_masks`), and the static
+        pixels beyond reach count only in the scene colour statistics of frames with seeds. Each
+        pixel is tested on its own, so the masks are those of testing every pixel, at about half
+        the cost (most of a room is beyond arm's reach, and about half the frames show no hand).
         """
         cfg = self.config
         w, h = self.size
-        z = self.depth(frame).ravel().astype(np.float64)
+        depth = self.depth(frame)
+        z = depth.ravel().astype(np.float64)
         valid = z > cfg.min_range_m
         p_camera = self.rays_by_row * z  # (3, h*w): one contiguous row per coordinate
         labels = self.labels(frame)
-        # Each label's pixels (static scene, then part k + 1's mask) and their points, once per frame.
-        groups = [(label, group, p_camera[:, group]) for label in range(len(self.T_world_part) + 1)
-                  if len(group := np.flatnonzero((labels == label) & valid))]
-        margin_z = self._margin(z)
         count = np.zeros(h * w, dtype=np.int32)
         agree = np.zeros(h * w, dtype=np.int32)
         # Per side (past references, future references): violated by one / tested by one.
         side_violated = np.zeros((2, h * w), dtype=bool)
         side_tested = np.zeros((2, h * w), dtype=bool)
+        reach = valid & (np.linalg.norm(p_camera, axis=0) < cfg.max_range_m)
+        near = reach | (depth.ravel() < cfg.max_range_m)  # as depth_masks compares them
+
+        def test(pixels: IntArray) -> BoolArray:
+            """Test ``pixels``; (h*w,) the pixels violating so far."""
+            count[pixels], side_violated[:, pixels], side_tested[:, pixels], agree[pixels] = self._tests(
+                frame, pixels, z, p_camera, labels)
+            violating = count > 0
+            if cfg.two_sided:
+                violating &= np.all(side_violated | ~side_tested, axis=0)
+            return violating
+
+        violating = test(np.flatnonzero(valid & near))
+        seeds = (violating & reach).reshape(h, w).astype(np.uint8)
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (cfg.seed_opening_px, cfg.seed_opening_px))
+        seeds = cv2.morphologyEx(seeds, cv2.MORPH_OPEN, kernel)
+        seeds = _drop_small(seeds > 0, cfg.min_component_fraction * w * h)
+        if seeds.any():  # the pixels beyond reach are needed only then (see above)
+            violating = test(np.flatnonzero(valid & ~near))
+        # With two_sided, a pixel that violates one side only (a part whose motion is estimated
+        # wrongly) is static where it agrees with enough references: it must not be grown into.
+        static = ((agree >= cfg.min_static_references) & ~(violating if cfg.two_sided else count > 0)).reshape(h, w)
+        return seeds, static
+
+    def _tests(self, frame: int, pixels: IntArray, z: FloatArray, p_camera: FloatArray, labels: IntArray
+               ) -> tuple[IntArray, BoolArray, BoolArray, IntArray]:
+        """The reference tests of some valid pixels of a frame: (n,) flat ``pixels`` of the frame's
+        (h*w,) depths ``z``, (3, h*w) points ``p_camera`` and (h*w,) labels (:meth:`labels`).
+
+        Returns:
+            (n,) references violated, (2, n) violated by a past / future one, (2, n) tested by a
+            past / future one, (n,) references agreed with (static evidence).
+        """
+        n = len(pixels)
+        labels, z = labels[pixels], z[pixels]
+        # Each label's pixels (static scene, then part k + 1's mask) and their points, once per call.
+        groups = [(label, group, p_camera[:, pixels[group]]) for label in range(len(self.T_world_part) + 1)
+                  if len(group := np.flatnonzero(labels == label))]
+        margin_z = self._margin(z)
+        count = np.zeros(n, dtype=np.int32)
+        agree = np.zeros(n, dtype=np.int32)
+        side_violated = np.zeros((2, n), dtype=bool)
+        side_tested = np.zeros((2, n), dtype=bool)
         T_world_frame = self.T_world_camera[frame]
         for offset in self.offsets:
             ref = frame + offset
@@ -365,9 +420,9 @@ class _Detector:
             T_ref_world = self.T_camera_world[ref]
             T_move = [T_world_part[ref] @ invert_transform(T_world_part[frame]) for T_world_part in self.T_world_part]
             moved = [k for k, T in enumerate(T_move) if not np.allclose(T, np.eye(4), atol=_SAME_POSE)]
-            violated = np.zeros(h * w, dtype=bool)
-            ok = np.zeros(h * w, dtype=bool)
-            consistent = np.zeros(h * w, dtype=bool)
+            violated = np.zeros(n, dtype=bool)
+            ok = np.zeros(n, dtype=bool)
+            consistent = np.zeros(n, dtype=bool)
             for label, group, p_group in groups:
                 own = T_ref_world @ (T_world_frame if label == 0 else T_move[label - 1] @ T_world_frame)
                 z_ref, seen, exact, tested = self._reproject(p_group, own, ref)
@@ -387,21 +442,10 @@ class _Detector:
             # Static evidence needs the hypothesis to agree where the camera-rigid one (same
             # pixel, same depth) does not: the arm near the shoulder moves with the head and
             # agrees with both, so it never counts as scene.
-            same_pixel = self.depth(ref).ravel()
+            same_pixel = self.depth_flat(ref)[pixels]
             rigid = (same_pixel > 0) & (np.abs(same_pixel - z) < margin_z)
             agree += ok & consistent & ~violated & ~rigid
-        reach = valid & (np.linalg.norm(p_camera, axis=0) < cfg.max_range_m)
-        violating = count > 0
-        if cfg.two_sided:
-            violating &= np.all(side_violated | ~side_tested, axis=0)
-        seeds = (violating & reach).reshape(h, w).astype(np.uint8)
-        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (cfg.seed_opening_px, cfg.seed_opening_px))
-        seeds = cv2.morphologyEx(seeds, cv2.MORPH_OPEN, kernel)
-        seeds = _drop_small(seeds > 0, cfg.min_component_fraction * w * h)
-        # With two_sided, a pixel that violates one side only (a part whose motion is estimated
-        # wrongly) is static where it agrees with enough references: it must not be grown into.
-        static = ((agree >= cfg.min_static_references) & ~(violating if cfg.two_sided else count > 0)).reshape(h, w)
-        return seeds, static
+        return count, side_violated, side_tested, agree
 
     # -- pass 2: colour growth -------------------------------------------------------------
     def chroma_bins(self, rgb: UInt8Array) -> tuple[IntArray, BoolArray]:
@@ -453,17 +497,27 @@ class _Detector:
         # Pass 1's masks for pass 2, packed 8 pixels a byte: lossless like PNG at a 30th of its
         # encoding time (PNG encoding took 8 of the 123 CPU-s of plain_rev_cabinet_right_00).
         seed_bits, static_bits, near_bits, growable_bits = [], [], [], []
-        for frame in range(F):
+
+        def first_pass(frame: int) -> tuple[list[UInt8Array], tuple[IntArray, IntArray] | None]:
+            """A frame's packed seed, static, near and growable masks, and its skin and scene chroma counts."""
             seeds, static = self.violations(frame)
             near, growable = self.depth_masks(frame)
-            for store, mask in ((seed_bits, seeds), (static_bits, static), (near_bits, near), (growable_bits, growable)):
-                store.append(np.packbits(mask))
+            counts = None
             if seeds.any():
                 chroma, usable = self.chroma_bins(self.capture.rgb(frame))
                 core = cv2.erode(seeds.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
-                hist_skin += np.bincount(chroma[core & usable], minlength=bins * bins)
-                hist_scene += np.bincount(chroma[static & usable], minlength=bins * bins)
-            self.evict(frame + min(self.offsets))
+                counts = (np.bincount(chroma[core & usable], minlength=bins * bins),
+                          np.bincount(chroma[static & usable], minlength=bins * bins))
+            return [np.packbits(mask) for mask in (seeds, static, near, growable)], counts
+
+        # handed out in frame order: the histograms sum in the same order, and the depth window moves on
+        for frame, (packed, counts) in enumerate(in_order(first_pass, range(F), cfg.threads, "funrec-hands")):
+            for store, bits in zip((seed_bits, static_bits, near_bits, growable_bits), packed, strict=True):
+                store.append(bits)
+            if counts is not None:
+                hist_skin += counts[0]
+                hist_scene += counts[1]
+            self.evict(frame + 1 + min(self.offsets))  # the frames after it are worked on: their window is kept
             if progress is not None:
                 progress(frame + 1, 2 * F)
         skin = _skin_probability(hist_skin, hist_scene, cfg.min_colour_samples * self.size[0] * self.size[1], cfg)
@@ -471,12 +525,16 @@ class _Detector:
         self._depth.clear()
         self._min_depth.clear()
         H, W = self.capture.intrinsics.height, self.capture.intrinsics.width
-        png = []
-        for frame in range(F):
+
+        def second_pass(frame: int) -> bytes:
             mask = self.grow(frame, *(self._unpack(store[frame]) for store in (seed_bits, static_bits, near_bits, growable_bits)), skin)
             if mask.shape != (H, W):
                 mask = cv2.resize(mask.astype(np.float32), (W, H), interpolation=cv2.INTER_LINEAR) > 0.5
-            png.append(encode_mask(mask))
+            return encode_mask(mask)
+
+        png = []
+        for frame, encoded in enumerate(in_order(second_pass, range(F), cfg.threads, "funrec-hands")):
+            png.append(encoded)
             if progress is not None:
                 progress(F + frame + 1, 2 * F)
         return HandMasks(np.arange(F, dtype=np.int64), tuple(png), H, W, "detected", colour_model=skin is not None)
