@@ -111,6 +111,14 @@ def tilt_axis(task: ArticulationTask) -> int:
     return int(np.argmin(np.abs(R[2, :2])))
 
 
+def handle_across(task: ArticulationTask, tilt: float) -> float:
+    """Extent of a handle of known thickness across the pads of a grasp tilted by ``tilt``, m: its thickness and,
+    tilted, part of its depth along the approach (its thickness where the depth is not known)."""
+    assert task.handle_width is not None
+    depth = task.handle_width if task.handle_depth is None else task.handle_depth
+    return float(task.handle_width * np.cos(tilt) + depth * abs(np.sin(tilt)))
+
+
 def opening_commands(
     robot: RobotDescription, task: ArticulationTask, config: GraspConfig, tilt: float = 0.0
 ) -> tuple[float, float]:
@@ -123,9 +131,7 @@ def opening_commands(
     low, high = sorted((gripper.closed, gripper.open))
     if task.handle_width is None:
         return float(np.clip(gripper.command(config.unknown_handle_width / 2 + config.grip_margin), low, high)), gripper.closed
-    depth = task.handle_width if task.handle_depth is None else task.handle_depth
-    across = task.handle_width * np.cos(tilt) + depth * abs(np.sin(tilt))
-    opening = float(np.clip(gripper.command(across / 2 + config.grip_margin), low, high))
+    opening = float(np.clip(gripper.command(handle_across(task, tilt) / 2 + config.grip_margin), low, high))
     holding = float(np.clip(gripper.command(task.handle_width / 2 - config.grip_squeeze), low, high))
     return opening, holding
 
@@ -318,16 +324,27 @@ def _graspable_tilts(
     out = []
     gripper = robot.gripper
     for tilt in config.tilts:
-        if task.handle_width is not None:  # a handle wider across the pads than the jaws open cannot be taken
-            depth_across = task.handle_width if task.handle_depth is None else task.handle_depth
-            across = task.handle_width * np.cos(tilt) + depth_across * abs(np.sin(tilt))
-            if (gripper.command(across / 2.0) - gripper.closed) / (gripper.open - gripper.closed) > 1.0:
-                continue
+        if task.handle_width is not None and handle_across(task, tilt) > gripper.open_gap:
+            continue  # a handle wider across the pads than the jaws open cannot be taken
         opening, holding = opening_commands(robot, task, config, tilt)
         depth = grasp_depth(task, geometry, opening, tilt, config, clear_palm)
         if depth is not None:
             out.append((tilt, opening, holding, depth))
     return out
+
+
+def ungraspable_reason(robot: RobotDescription, task: ArticulationTask, config: GraspConfig) -> str:
+    """Why ``graspable_tilts`` finds no tilt, naming the dimension that fails: the handle's extent across the
+    pads at its narrowest tilt against the jaws' open gap, or, where it fits, the palm and the part's front."""
+    if task.handle_width is None:
+        return "its bar meets the palm, or the fingertips meet the part's front"
+    gap, width = 1000.0 * robot.gripper.open_gap, 1000.0 * task.handle_width
+    narrowest = 1000.0 * min(handle_across(task, tilt) for tilt in config.tilts)
+    if narrowest <= gap:
+        return (f"its bar ({width:.0f} mm thick) fits between the jaws ({gap:.0f} mm open), but wherever it does it "
+                "meets the palm or the fingertips meet the part's front")
+    tilted = "" if narrowest >= width else f" and {narrowest:.0f} mm across the pads at its narrowest tilt"
+    return f"its bar is {width:.0f} mm thick{tilted}, wider than the jaws open ({gap:.0f} mm)"
 
 
 def grasp_candidates(
@@ -366,6 +383,7 @@ __all__ = [
     "grasp_depth",
     "surface_offset",
     "graspable_tilts",
+    "handle_across",
     "handle_frames",
     "jaw_offset",
     "knob_roll_limit",
@@ -374,4 +392,5 @@ __all__ = [
     "opening_commands",
     "release_command",
     "tilt_axis",
+    "ungraspable_reason",
 ]

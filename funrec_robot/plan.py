@@ -31,7 +31,7 @@ from funrec_robot.feasibility import (
     resting_state,
 )
 from funrec_robot.ghosts import part_ghosts, range_states, without_geoms
-from funrec_robot.grasp import grasp_candidates, graspable_tilts, release_command
+from funrec_robot.grasp import grasp_candidates, graspable_tilts, release_command, ungraspable_reason
 from funrec_robot.grasp_frames import T_world_grasp_canonical, grasp_free_axis
 from funrec_robot.plan_config import PlanConfig
 from funrec_robot.plan_file import Plan, Segment, sha256_file
@@ -299,10 +299,8 @@ def _handle_path(
                 config = replace(config, grasp=replace(config.grasp, fall_state=target_state))
             candidates = grasp_candidates(robot, task, states, geometry, r_max, config.grasp)
     if not candidates and not graspable_tilts(robot, task, geometry, config.grasp):
-        size = "" if task.handle_width is None else f" ({1000 * task.handle_width:.0f} mm thick)"
         raise Refusal(
-            f"part '{task.part}': the gripper cannot take the handle{size} at any tilt: it is wider than the jaws "
-            "open, or its bar meets the palm, or the fingertips meet the part's front"
+            f"part '{task.part}': the gripper cannot take the handle at any tilt: {ungraspable_reason(robot, task, config.grasp)}"
         )
     if not candidates:
         raise Refusal(

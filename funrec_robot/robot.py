@@ -109,6 +109,12 @@ class GripperDescription:
             return self.closed + half_width * float(np.sign(span))
         return self.closed + half_width * span / (self.open_width / 2.0)
 
+    @property
+    def open_gap(self) -> float:
+        """Gap between the jaws at the open command, m: ``open_width``, or twice the open-to-closed span (the
+        width ``command`` maps to ``open``)."""
+        return self.open_width if self.open_width is not None else 2.0 * abs(self.open - self.closed)
+
 
 @dataclass(frozen=True)
 class RobotDescription:

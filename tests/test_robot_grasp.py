@@ -140,3 +140,38 @@ def test_a_thick_bar_is_taken_further_out_on_the_pads_clear_of_the_palm() -> Non
     # 0.012 = 0.02 m, and its 10.5 mm reach back stays clear of the palm.
     thin = replace(drawer, surface_offset=0.031, handle_width=0.015)
     assert grasp_depth(thin, geometry, 0.0, 0.0, config, clear_palm=True) == pytest.approx(0.02, abs=1e-9)
+
+
+def test_a_handle_wider_than_the_jaws_is_refused_naming_its_thickness_and_the_gap() -> None:
+    """Meta-World's safe door (mw_door_00) at 2.4x: a round lever bar 109 mm across (radius 54.5 mm, measured on
+    its mesh), 0.42 m deep along the approach as ``scene.part_front`` boxes it with its post. Across the pads it
+    is at least 109 mm at every tilt, wider than any of the five robots' jaws (funrec_mm's 85 mm here): no tilt,
+    and the refusal names both numbers. A flat bar (100 x 10 mm) is narrower tilted, 54 mm at 1.1 rad: the
+    refusal names that too against 40 mm jaws; with 60 mm jaws it fits there, and what fails is the palm or the
+    front. Sizes are exact arithmetic; the messages round to the millimetre."""
+    from dataclasses import replace
+    from types import SimpleNamespace
+    from typing import cast
+
+    from funrec_robot.grasp import graspable_tilts, ungraspable_reason
+    from funrec_robot.robot import GripperDescription, RobotDescription
+
+    def robot(gripper: GripperDescription) -> RobotDescription:
+        return cast(RobotDescription, SimpleNamespace(gripper=gripper))  # grasping reads only the gripper
+
+    slides = GripperDescription(joints=("left", "right"), actuator=None, open=0.0425, closed=0.0)
+    hinged = replace(slides, open=-1.0, open_width=0.075)  # Spot's: a jaw on a hinge, its gap given
+    assert slides.open_gap == pytest.approx(0.085, abs=1e-12) and hinged.open_gap == pytest.approx(0.075, abs=1e-12)
+    door = replace(DOOR, surface_offset=0.264, handle_width=0.109, handle_depth=0.422)
+    config = GraspConfig()
+    assert graspable_tilts(robot(slides), door, _one_jaw_geometry(), config) == []
+    assert ungraspable_reason(robot(slides), door, config) == "its bar is 109 mm thick, wider than the jaws open (85 mm)"
+    assert ungraspable_reason(robot(hinged), door, config) == "its bar is 109 mm thick, wider than the jaws open (75 mm)"
+    flat = replace(DOOR, handle_width=0.1, handle_depth=0.01)
+    narrow = replace(slides, open=0.02)
+    assert ungraspable_reason(robot(narrow), flat, config) == (
+        "its bar is 100 mm thick and 54 mm across the pads at its narrowest tilt, wider than the jaws open (40 mm)"
+    )
+    assert ungraspable_reason(robot(replace(slides, open=0.03)), flat, config).startswith(
+        "its bar (100 mm thick) fits between the jaws (60 mm open), but wherever it does"
+    )
