@@ -159,3 +159,19 @@ def test_boxed_collision_limit_gives_minks_rows(robot, scene) -> None:
             np.testing.assert_allclose(got[np.lexsort(got.T[::-1])], expected[np.lexsort(expected.T[::-1])], atol=1e-12)
             culled.append(np.mean(limit.lower_distances(configuration.data) > limit.collision_detection_distance))
     assert np.mean(culled) > 0.5
+
+
+def test_a_planning_model_without_textures_is_the_same_model_to_the_planner(robot, scene) -> None:
+    """The planner's model is built without the scene's textures (``textures=False``): nothing the planner reads
+    changes, bit for bit (bodies, joints, geoms and their materials' colours, the same number of each), only the
+    images are gone."""
+    gt, model = scene
+    bare = build_mujoco_model(robot, gt / "scene.xml", textures=False)
+    assert model.ntex > 0 and bare.ntex == 0 and bare.ntexdata == 0
+    for field in ("body_pos", "body_quat", "body_mass", "jnt_range", "jnt_qposadr", "qpos0", "geom_type", "geom_size",
+                  "geom_pos", "geom_quat", "geom_contype", "geom_conaffinity", "geom_friction", "geom_matid",
+                  "geom_rgba", "geom_aabb", "geom_rbound", "mat_rgba", "mesh_vert", "opt.timestep"):
+        first, second = model, bare
+        for part in field.split("."):
+            first, second = getattr(first, part), getattr(second, part)
+        np.testing.assert_array_equal(first, second, err_msg=field)
