@@ -175,3 +175,16 @@ def test_a_planning_model_without_textures_is_the_same_model_to_the_planner(robo
         for part in field.split("."):
             first, second = getattr(first, part), getattr(second, part)
         np.testing.assert_array_equal(first, second, err_msg=field)
+
+
+def test_lower_distances_of_many_footprints_are_each_footprints(problems) -> None:
+    """All footprints of the door's placement at once give each footprint's own lower distances, bit for bit
+    (the placement's footprint selection and its reported clearance compare them with thresholds)."""
+    from funrec_robot.scene import lower_distances
+
+    problem = problems[0]
+    polygons = problem.static + problem.start_part + sum(problem.sweep, ())
+    points = problem.wrist_world[0, :2] + np.random.default_rng(5).uniform(-2.0, 2.0, (9, 2))
+    assert len(polygons) > 3
+    np.testing.assert_array_equal(lower_distances(polygons, points), np.column_stack([p.lower_distance(points) for p in polygons]))
+    assert lower_distances((), points).shape == (9, 0)
