@@ -15,7 +15,7 @@ import pytest
 
 import funrec_robot.plan as plan_module
 from funrec_robot import build_mujoco_model, default_robot_path, load_robot
-from funrec_robot.collision_limit import BoxedCollisionLimit
+from funrec_robot.collision_limit import BoxedCollisionLimit, GeomBoxes
 from funrec_robot.ik import IKConfig, WholeBodyIK
 from funrec_robot.plan import plan_interaction
 from funrec_robot.scene import part_joint
@@ -188,3 +188,27 @@ def test_lower_distances_of_many_footprints_are_each_footprints(problems) -> Non
     assert len(polygons) > 3
     np.testing.assert_array_equal(lower_distances(polygons, points), np.column_stack([p.lower_distance(points) for p in polygons]))
     assert lower_distances((), points).shape == (9, 0)
+
+
+def test_the_ik_limits_share_one_broad_phase_with_each_limits_own_distances(robot, scene) -> None:
+    """The IK's collision limits measure their geoms' boxes once per configuration (``shared_boxes``): each limit
+    still gets its own pairs' lower distances, bit for bit those of a limit with its own broad phase, and a new
+    configuration is measured anew."""
+    gt, model = scene
+    joint = part_joint(model, "part_0")
+    ik = WholeBodyIK(robot, model, joint, np.zeros((1, 3)), [], IKConfig())
+    limits = [lim for lim in ik.limits if isinstance(lim, BoxedCollisionLimit)]
+    assert len(limits) > 1 and len({id(lim._boxes) for lim in limits}) == 1
+    alone = [BoxedCollisionLimit(model, [], collision_detection_distance=lim.collision_detection_distance) for lim in limits]
+    for own, lim in zip(alone, limits):
+        own.geom_id_pairs = lim.geom_id_pairs
+        own.use_boxes(GeomBoxes(model, lim.geom_id_pairs), 0)
+    rng = np.random.default_rng(7)
+    configuration = mink.Configuration(model)
+    for _ in range(5):
+        q = model.qpos0.copy()
+        q[ik.indices.qpos[ik.n_base :]] = rng.uniform(np.maximum(robot.q_min[ik.n_base :], -3.0), np.minimum(robot.q_max[ik.n_base :], 3.0))
+        q[ik.indices.qpos[:2]] = rng.uniform(-1.0, 1.0, 2)
+        configuration.update(q)
+        for own, lim in zip(alone, limits):
+            np.testing.assert_array_equal(lim.lower_distances(configuration.data), own.lower_distances(configuration.data))
