@@ -212,3 +212,24 @@ def test_the_ik_limits_share_one_broad_phase_with_each_limits_own_distances(robo
         configuration.update(q)
         for own, lim in zip(alone, limits):
             np.testing.assert_array_equal(lim.lower_distances(configuration.data), own.lower_distances(configuration.data))
+
+
+def test_timed_path_sampled_at_once_is_toppras_own_sampling() -> None:
+    """``retime._sample`` evaluates toppra's timed path at all times at once: the same positions and velocities
+    as toppra's own loop over the times, bit for bit, between and at its gridpoints and at the end."""
+    import toppra
+    import toppra.algorithm
+    import toppra.constraint
+
+    from funrec_robot.retime import _sample
+
+    rng = np.random.default_rng(11)
+    waypoints = np.cumsum(rng.uniform(-0.3, 0.3, (9, 4)), axis=0)
+    path = toppra.SplineInterpolator(np.linspace(0.0, 1.0, 9), waypoints, bc_type="clamped")
+    limits = [toppra.constraint.JointVelocityConstraint(np.column_stack([-np.ones(4), np.ones(4)])),
+              toppra.constraint.JointAccelerationConstraint(np.column_stack([-2 * np.ones(4), 2 * np.ones(4)]))]
+    timed = toppra.algorithm.TOPPRA(limits, path, gridpoints=np.linspace(0.0, 1.0, 50),
+                                    parametrizer="ParametrizeConstAccel").compute_trajectory(0.0, 0.0)
+    t = np.r_[np.linspace(0.0, timed.duration, 997), timed._ts, timed.duration]
+    for order in (0, 1):
+        np.testing.assert_array_equal(_sample(timed, t, order), timed(t, order))
