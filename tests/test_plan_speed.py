@@ -233,3 +233,16 @@ def test_timed_path_sampled_at_once_is_toppras_own_sampling() -> None:
     t = np.r_[np.linspace(0.0, timed.duration, 997), timed._ts, timed.duration]
     for order in (0, 1):
         np.testing.assert_array_equal(_sample(timed, t, order), timed(t, order))
+
+
+def test_boxed_collision_limit_pairs_are_minks_in_minks_order(robot, scene) -> None:
+    """The limit's pairs, filtered at once, are the list mink's pair-by-pair filter gives, in the same order (the
+    QP's rows follow it), for each of the IK's groups of the door scene."""
+    gt, model = scene
+    joint = part_joint(model, "part_0")
+    ik = WholeBodyIK(robot, model, joint, np.zeros((1, 3)), [], IKConfig())
+    groups = [g for g in ik._collision_pairs(np.zeros((1, 3)), np.zeros(0, dtype=np.int64)) if g]
+    limits = [lim for lim in ik.limits if isinstance(lim, BoxedCollisionLimit)]
+    assert len(groups) == len(limits) > 1
+    for pairs, limit in zip(groups, limits):
+        assert limit.geom_id_pairs == mink.CollisionAvoidanceLimit(model, pairs).geom_id_pairs
