@@ -102,6 +102,19 @@ def limit_use(
     )
 
 
+def _sample(timed, t: FloatArray, order: int = 0) -> FloatArray:  # noqa: ANN001
+    """``timed(t, order)`` (order 0 or 1) of toppra's ``ParametrizeConstAccel``, its path parameter evaluated at all
+    times at once. Hand-written from toppra's ``_eval_params``, which loops over the times in Python: checking a
+    Fetch path of 50 s every ``check_dt`` took 1.8 s of its 19 gt18 plans. The same arithmetic in the same order,
+    so the same samples bit for bit (``tests/test_plan_speed.py``)."""
+    index = np.searchsorted(timed._ts, t, side="right") - 1
+    index = np.where(index == len(timed._us), index - 1, index)
+    dt = t - timed._ts[index]
+    u, v = timed._us[index], timed._velocities[index]
+    s = timed._ss[index] + dt * v + 0.5 * dt**2 * u
+    return timed._path(s) if order == 0 else np.multiply(timed._path(s, 1), (v + dt * u)[:, np.newaxis])
+
+
 def _path_parameter(waypoints: FloatArray, v_max: FloatArray) -> FloatArray:
     """Cumulative path parameter of waypoints: joint steps in units of each joint's speed limit."""
     steps = np.max(np.abs(np.diff(waypoints, axis=0)) / v_max, axis=1)
@@ -121,19 +134,6 @@ def _overshooting_pieces(path, ss: FloatArray, waypoints: FloatArray, config: Re
     low = np.minimum(waypoints[:-1], waypoints[1:])[:, None, :] - room
     high = np.maximum(waypoints[:-1], waypoints[1:])[:, None, :] + room
     return np.any((q < low) | (q > high), axis=(1, 2))
-
-
-def _sample(timed, t: FloatArray, order: int = 0) -> FloatArray:  # noqa: ANN001
-    """``timed(t, order)`` (order 0 or 1) of toppra's ``ParametrizeConstAccel``, its path parameter evaluated at all
-    times at once. Hand-written from toppra's ``_eval_params``, which loops over the times in Python: checking a
-    Fetch path of 50 s every ``check_dt`` took 1.8 s of its 19 gt18 plans. The same arithmetic in the same order,
-    so the same samples bit for bit (``tests/test_plan_speed.py``)."""
-    index = np.searchsorted(timed._ts, t, side="right") - 1
-    index = np.where(index == len(timed._us), index - 1, index)
-    dt = t - timed._ts[index]
-    u, v = timed._us[index], timed._velocities[index]
-    s = timed._ss[index] + dt * v + 0.5 * dt**2 * u
-    return timed._path(s) if order == 0 else np.multiply(timed._path(s, 1), (v + dt * u)[:, np.newaxis])
 
 
 def retime_path(
