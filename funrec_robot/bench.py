@@ -142,7 +142,7 @@ def _ground_truth_rows(case, gt, robot, target, plan_config, check_config, plans
         name = gt_part.part.name
         clock, cpu = time.perf_counter(), time.process_time()
         try:
-            model = build_mujoco_model(robot, gt.scene_xml)
+            model = build_mujoco_model(robot, gt.scene_xml, textures=False)
             task = task_from_ground_truth(gt.root, name, model)
             plan = plan_interaction(robot, gt.scene_xml, task, target, config=plan_config, model=model)
         except FunrecError as exc:
@@ -167,7 +167,7 @@ def _twin_rows(case, gt, robot, target, plan_config, check_config, plans_dir, tw
     try:
         twin_parts = [p.name for p in read_articulation(twin).parts]
         twin_xml = twin / "twin.xml"
-        model = build_mujoco_model(robot, twin_xml) if twin_parts else None
+        model = build_mujoco_model(robot, twin_xml, textures=False) if twin_parts else None
     except (FunrecError, OSError) as exc:
         twin_parts, why = [], f"no usable twin: {exc}"
     else:

@@ -19,7 +19,7 @@ import numpy.typing as npt
 from funrec.errors import PlanningError
 from funrec.typed import FloatArray, IntArray
 from funrec_robot.budget import check_time_limit
-from funrec_robot.collision_limit import BoxedCollisionLimit
+from funrec_robot.collision_limit import BoxedCollisionLimit, shared_boxes
 from funrec_robot.robot import RobotDescription
 from funrec_robot.scene import bodies_geoms, floor_geoms, gravity_load, subtree_bodies
 from funrec_robot.sim_model import ROBOT_PREFIX, apply_couplings, hand_bodies, robot_indices
@@ -289,17 +289,12 @@ class WholeBodyIK:
         )
         distances = (config.collision_distance, config.arm_collision_distance, config.gripper_collision_distance,
                      config.wrist_collision_distance)
-        for pairs, distance in zip(groups, distances):
-            if pairs:
-                self.limits.append(
-                    BoxedCollisionLimit(
-                        model,
-                        pairs,
-                        gain=config.collision_gain,
-                        minimum_distance_from_collisions=distance,
-                        collision_detection_distance=config.collision_detection,
-                    )
-                )
+        collision = [
+            BoxedCollisionLimit(model, pairs, gain=config.collision_gain, minimum_distance_from_collisions=distance,
+                                collision_detection_distance=config.collision_detection)
+            for pairs, distance in zip(groups, distances) if pairs
+        ]
+        self.limits += shared_boxes(model, collision) if collision else []
 
     def _coupled_dofs(self, planning: set[int]) -> list[tuple[int, int, float]]:
         """(follower dof, leader dof, ratio) of the coupled joints whose leader the IK moves."""

@@ -572,7 +572,7 @@ def plan_interaction(
         target: 'open', 'close', 'demo' or a joint state (rad or m).
         start: the part's state when the robot arrives; default ``task.state_current``.
         config: settings.
-        model: ``build_mujoco_model(robot, scene_xml)`` if already built.
+        model: ``build_mujoco_model(robot, scene_xml, textures=False)`` if already built.
 
     Returns:
         The timed plan, starting with the base at its first stop and the arm at home, gripper open.
@@ -600,7 +600,7 @@ def _plan_interaction(robot: RobotDescription, scene_xml: str | Path, task: Arti
         timings[name] = round(now - clock, 4)
         clock = now
 
-    model = build_mujoco_model(robot, scene_xml) if model is None else model
+    model = build_mujoco_model(robot, scene_xml, textures=False) if model is None else model
     lap("model")
     joint = part_joint(model, task.part)
     geometry = measure_robot(robot)
@@ -688,7 +688,7 @@ def plan_scene(
     """
     robot = load_robot(robot_path)
     source = locate_scene(scene)
-    model = build_mujoco_model(robot, source.scene_xml)
+    model = build_mujoco_model(robot, source.scene_xml, textures=False)
     task = load_task(source, part, model)
     return plan_interaction(robot, source.scene_xml, task, target, start, config, model=model)
 

@@ -151,7 +151,7 @@ def replay_twin(
     out_dir.mkdir(parents=True, exist_ok=True)
     robot = load_robot(robot_path)
     twin_xml = twin_dir / "twin.xml"
-    model = build_mujoco_model(robot, twin_xml)
+    model = build_mujoco_model(robot, twin_xml, textures=False)
     steps: list[ReplayStep] = []
     clips: list[Path] = []
     with tempfile.TemporaryDirectory(prefix="funrec_replay_") as scratch:

@@ -8,6 +8,7 @@ panels and bars of FunREC scenes is the geom itself.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import mujoco
@@ -58,6 +59,19 @@ class Polygon:
         """(N,) max over edges of ``A p - b``: negative inside, and outside a lower bound of the distance."""
         p = np.atleast_2d(np.asarray(p_xy, dtype=np.float64))
         return np.max(p @ self.A.T - self.b, axis=1)
+
+
+def lower_distances(polygons: Sequence[Polygon], p_xy: npt.ArrayLike) -> FloatArray:
+    """(N, P) :meth:`Polygon.lower_distance` of N points to each of P polygons at once: one product over every
+    edge, then the largest of each polygon's run of edges. Base placement asks it of hundreds of footprints for
+    each stop it poses; one polygon at a time, that took a tenth of the placement."""
+    p = np.atleast_2d(np.asarray(p_xy, dtype=np.float64))
+    if not polygons:
+        return np.empty((len(p), 0))
+    A = np.vstack([polygon.A for polygon in polygons])
+    b = np.concatenate([polygon.b for polygon in polygons])
+    starts = np.cumsum([0] + [len(polygon.b) for polygon in polygons[:-1]])
+    return np.maximum.reduceat(p @ A.T - b, starts, axis=1)
 
 
 @dataclass(frozen=True)
@@ -413,6 +427,7 @@ __all__ = [
     "geoms_near",
     "gravity_load",
     "hull_approximated",
+    "lower_distances",
     "part_front",
     "part_geoms",
     "part_joint",

@@ -21,7 +21,7 @@ from funrec.errors import PlanningError
 from funrec.typed import FloatArray, IntArray
 from funrec_robot.budget import check_time_limit, remaining_time
 from funrec_robot.robot_geometry import Circle
-from funrec_robot.scene import Polygon
+from funrec_robot.scene import Polygon, lower_distances
 
 log = logging.getLogger(__name__)
 
@@ -204,14 +204,9 @@ class _Terms:
 
 def _relevant(polygons: tuple[Polygon, ...], circles: tuple[Circle, ...], region: FloatArray, radius: float) -> tuple[Polygon, ...]:
     """The polygons whose height overlaps the discs' and that come within ``radius`` of a region point."""
-    out = []
-    for polygon in polygons:
-        if not any(_overlap(c.z_band, polygon.z_band) for c in circles):
-            continue
-        if float(np.min(polygon.lower_distance(region))) > radius:
-            continue
-        out.append(polygon)
-    return tuple(out)
+    banded = [polygon for polygon in polygons if any(_overlap(c.z_band, polygon.z_band) for c in circles)]
+    near = lower_distances(banded, region).min(axis=0, initial=np.inf) <= radius
+    return tuple(polygon for polygon, keep in zip(banded, near) if keep)
 
 
 def _clearance_terms(
@@ -243,7 +238,8 @@ def _near(polygons: tuple[Polygon, ...], circles: tuple[Circle, ...], poses: Flo
         centres += [pose[:2] + R @ circle.centre_base for circle in circles]
         radii += [circle.radius for circle in circles]
     centres_xy, reach = np.array(centres), np.array(radii) + radius
-    return tuple(p for p in polygons if bool(np.any(p.lower_distance(centres_xy) < reach)))
+    near = np.any(lower_distances(polygons, centres_xy) < reach[:, None], axis=0)
+    return tuple(p for p, keep in zip(polygons, near) if keep)
 
 
 def _base_terms(
@@ -342,10 +338,9 @@ def exact_clearance(
         if b == 0:
             pairs += [(circle, problem.static + problem.start_part) for circle in problem.arm_circles]
         for circle, polygons in pairs:
-            centre = pose[:2] + R @ circle.centre_base
-            for polygon in polygons:
-                if _overlap(circle.z_band, polygon.z_band):
-                    gap = min(gap, float(polygon.lower_distance(centre)[0]) - circle.radius)
+            banded = [polygon for polygon in polygons if _overlap(circle.z_band, polygon.z_band)]
+            if banded:
+                gap = min(gap, float(lower_distances(banded, pose[:2] + R @ circle.centre_base).min()) - circle.radius)
     return gap
 
 

@@ -15,7 +15,7 @@ import pytest
 
 import funrec_robot.plan as plan_module
 from funrec_robot import build_mujoco_model, default_robot_path, load_robot
-from funrec_robot.collision_limit import BoxedCollisionLimit
+from funrec_robot.collision_limit import BoxedCollisionLimit, GeomBoxes
 from funrec_robot.ik import IKConfig, WholeBodyIK
 from funrec_robot.plan import plan_interaction
 from funrec_robot.scene import part_joint
@@ -159,3 +159,90 @@ def test_boxed_collision_limit_gives_minks_rows(robot, scene) -> None:
             np.testing.assert_allclose(got[np.lexsort(got.T[::-1])], expected[np.lexsort(expected.T[::-1])], atol=1e-12)
             culled.append(np.mean(limit.lower_distances(configuration.data) > limit.collision_detection_distance))
     assert np.mean(culled) > 0.5
+
+
+def test_a_planning_model_without_textures_is_the_same_model_to_the_planner(robot, scene) -> None:
+    """The planner's model is built without the scene's textures (``textures=False``): nothing the planner reads
+    changes, bit for bit (bodies, joints, geoms and their materials' colours, the same number of each), only the
+    images are one texel each."""
+    gt, model = scene
+    bare = build_mujoco_model(robot, gt / "scene.xml", textures=False)
+    assert model.ntex == bare.ntex > 0 and model.ntexdata > 3 * 32 * 32 and bare.ntexdata <= 6 * 4 * bare.ntex
+    for field in ("body_pos", "body_quat", "body_mass", "jnt_range", "jnt_qposadr", "qpos0", "geom_type", "geom_size",
+                  "geom_pos", "geom_quat", "geom_contype", "geom_conaffinity", "geom_friction", "geom_matid",
+                  "geom_rgba", "geom_aabb", "geom_rbound", "mat_rgba", "mesh_vert", "opt.timestep"):
+        first, second = model, bare
+        for part in field.split("."):
+            first, second = getattr(first, part), getattr(second, part)
+        np.testing.assert_array_equal(first, second, err_msg=field)
+
+
+def test_lower_distances_of_many_footprints_are_each_footprints(problems) -> None:
+    """All footprints of the door's placement at once give each footprint's own lower distances, bit for bit
+    (the placement's footprint selection and its reported clearance compare them with thresholds)."""
+    from funrec_robot.scene import lower_distances
+
+    problem = problems[0]
+    polygons = problem.static + problem.start_part + sum(problem.sweep, ())
+    points = problem.wrist_world[0, :2] + np.random.default_rng(5).uniform(-2.0, 2.0, (9, 2))
+    assert len(polygons) > 3
+    np.testing.assert_array_equal(lower_distances(polygons, points), np.column_stack([p.lower_distance(points) for p in polygons]))
+    assert lower_distances((), points).shape == (9, 0)
+
+
+def test_the_ik_limits_share_one_broad_phase_with_each_limits_own_distances(robot, scene) -> None:
+    """The IK's collision limits measure their geoms' boxes once per configuration (``shared_boxes``): each limit
+    still gets its own pairs' lower distances, bit for bit those of a limit with its own broad phase, and a new
+    configuration is measured anew."""
+    gt, model = scene
+    joint = part_joint(model, "part_0")
+    ik = WholeBodyIK(robot, model, joint, np.zeros((1, 3)), [], IKConfig())
+    limits = [lim for lim in ik.limits if isinstance(lim, BoxedCollisionLimit)]
+    assert len(limits) > 1 and len({id(lim._boxes) for lim in limits}) == 1
+    alone = [BoxedCollisionLimit(model, [], collision_detection_distance=lim.collision_detection_distance) for lim in limits]
+    for own, lim in zip(alone, limits):
+        own.geom_id_pairs = lim.geom_id_pairs
+        own.use_boxes(GeomBoxes(model, lim.geom_id_pairs), 0)
+    rng = np.random.default_rng(7)
+    configuration = mink.Configuration(model)
+    for _ in range(5):
+        q = model.qpos0.copy()
+        q[ik.indices.qpos[ik.n_base :]] = rng.uniform(np.maximum(robot.q_min[ik.n_base :], -3.0), np.minimum(robot.q_max[ik.n_base :], 3.0))
+        q[ik.indices.qpos[:2]] = rng.uniform(-1.0, 1.0, 2)
+        configuration.update(q)
+        for own, lim in zip(alone, limits):
+            np.testing.assert_array_equal(lim.lower_distances(configuration.data), own.lower_distances(configuration.data))
+
+
+def test_timed_path_sampled_at_once_is_toppras_own_sampling() -> None:
+    """``retime._sample`` evaluates toppra's timed path at all times at once: the same positions and velocities
+    as toppra's own loop over the times, bit for bit, between and at its gridpoints and at the end."""
+    import toppra
+    import toppra.algorithm
+    import toppra.constraint
+
+    from funrec_robot.retime import _sample
+
+    rng = np.random.default_rng(11)
+    waypoints = np.cumsum(rng.uniform(-0.3, 0.3, (9, 4)), axis=0)
+    path = toppra.SplineInterpolator(np.linspace(0.0, 1.0, 9), waypoints, bc_type="clamped")
+    limits = [toppra.constraint.JointVelocityConstraint(np.column_stack([-np.ones(4), np.ones(4)])),
+              toppra.constraint.JointAccelerationConstraint(np.column_stack([-2 * np.ones(4), 2 * np.ones(4)]))]
+    timed = toppra.algorithm.TOPPRA(limits, path, gridpoints=np.linspace(0.0, 1.0, 50),
+                                    parametrizer="ParametrizeConstAccel").compute_trajectory(0.0, 0.0)
+    t = np.r_[np.linspace(0.0, timed.duration, 997), timed._ts, timed.duration]
+    for order in (0, 1):
+        np.testing.assert_array_equal(_sample(timed, t, order), timed(t, order))
+
+
+def test_boxed_collision_limit_pairs_are_minks_in_minks_order(robot, scene) -> None:
+    """The limit's pairs, filtered at once, are the list mink's pair-by-pair filter gives, in the same order (the
+    QP's rows follow it), for each of the IK's groups of the door scene."""
+    gt, model = scene
+    joint = part_joint(model, "part_0")
+    ik = WholeBodyIK(robot, model, joint, np.zeros((1, 3)), [], IKConfig())
+    groups = [g for g in ik._collision_pairs(np.zeros((1, 3)), np.zeros(0, dtype=np.int64)) if g]
+    limits = [lim for lim in ik.limits if isinstance(lim, BoxedCollisionLimit)]
+    assert len(groups) == len(limits) > 1
+    for pairs, limit in zip(groups, limits):
+        assert limit.geom_id_pairs == mink.CollisionAvoidanceLimit(model, pairs).geom_id_pairs
