@@ -18,12 +18,15 @@ from scipy.spatial import ConvexHull, QhullError
 from funrec.typed import FloatArray, IntArray
 from funrec_robot.scene import box_corners, floor_geoms, geom_boxes, part_geoms, robot_bodies
 
-GHOST_TOLERANCE_M = 0.015
+GHOST_TOLERANCE_M = 0.025
 """A point of a static geom counts as inside the part when it lies within this distance outside the part's
 collision hull at some state, m: a twin fuses its static scene on a 1 cm voxel grid and its parts on a 5 mm one
 (funrec's ``FusionConfig.static_voxel_m``, ``part_voxel_m``), so a copy of the part's surface in the static
 scene sits up to a voxel of each off the part (on the r16 twins a copy of a handle at its held state lay 3 mm
-outside the part's hull and 10 mm from the contact point)."""
+outside the part's hull and 10 mm from the contact point); and the copy was fused at the state the part was
+held in, which the twin knows to about a degree (0.5-1.2 deg on the bench twins): 1 cm more at the edge of a
+0.6 m door. At 15 mm the copies of the fridge door's handle at its held state, 9-16 mm outside its hull on the
+twin of ``plain_rev_fridge_00``, stayed obstacles the hand could not pass (the IK 2 cm off the handle path)."""
 GHOST_FRACTION = 0.9
 """A static geom is a ghost when at least this share of its vertices lie inside the part (as above) at some
 state: a geom of real furniture next to the part (a carcass side the door's edge grazes) has most of its
