@@ -337,7 +337,7 @@ def task_from_twin(
         standoff = shape.standoff
         if shape.is_knob and shape.p_centre is not None:
             p_contact, handle_axis = shape.p_centre, None
-        elif shape.p_bar is not None:
+        elif shape.p_bar is not None and np.any(shape.p_bar != p_contact):
             log.info("part '%s': grasp centred across its bar, %.1f mm from the affordance's contact point",
                      joint.name, 1e3 * float(np.linalg.norm(shape.p_bar - p_contact)))
             p_contact = shape.p_bar

@@ -119,6 +119,9 @@ def test_measure_handle_centres_a_bar_across_but_not_along() -> None:
     shape = measure_handle(np.vstack([front, bar]), contact, approach, axis)
     assert not shape.is_knob and shape.p_bar is not None
     np.testing.assert_allclose(shape.p_bar, [centre[0], contact[1], contact[2]], atol=0.002)
+    # Within the part mesh's 5 mm grid of the bar's middle, the contact stays exactly where it was.
+    near = measure_handle(np.vstack([front, bar]), contact + [0.044 - 0.003, 0.0, 0.0], approach, axis)
+    assert near.p_bar is not None and np.array_equal(near.p_bar, contact + [0.041, 0.0, 0.0])
     blob = centre + rng.uniform(-0.045, 0.045, (2000, 3)) * [1.0, 0.0, 1.0] - [0.0, 0.01, 0.0]
     assert measure_handle(np.vstack([front, blob]), centre + [0.0, 0.0, 0.0], approach, axis).p_bar is None
 
