@@ -56,8 +56,8 @@ class GravityConfig:
     """Each plane is fitted again, by RANSAC among its own inliers at this inlier distance, metres: at
     ``plane_distance_m`` a floor's inliers can take in a second level a few centimetres up (a plinth, a
     bottom panel), and the least-squares plane through both tilts (2.7 degrees and the floor 4 cm off under
-    camera 0 on a twin of plain_rev_fridge_00, with a level 4.7 cm up); at 1 cm (3 sigma of the fused
-    floor's noise) the larger level alone remains."""
+    camera 0 on a twin of plain_rev_fridge_00, with a level 4.7 cm up); at 1 cm, a static voxel (fused floors
+    lie within 5 mm of their plane: the fridge twin's, measured in the true scene), the larger level alone remains."""
     ransac_iterations: int = 400
     """RANSAC iterations per plane."""
     seed: int = 0
@@ -170,6 +170,7 @@ def estimate_gravity(
     finite = points_world[np.isfinite(points_world).all(axis=1)]
     floor, worktop, ceiling = _floor_plane(finite, up, config, T_world_camera[:, :3, 3]) if len(points_world) else (None,) * 3
     p_camera0 = T_world_camera[0, :3, 3]
+    eye_height = f"not seen: assumed {config.assumed_camera_height_m:.2f} m below camera 0 (a standing adult's eye height)"
     if floor is not None:
         up, d, inliers = floor
         origin = p_camera0 - up * (up @ p_camera0 + d)
@@ -181,17 +182,17 @@ def estimate_gravity(
         log.warning("no floor plane found: the floor is assumed %.2f m below the worktop-high plane seen "
                     "(a robot planned in this twin stands on that guess)", config.worktop_height_m)
     elif ceiling is not None:
-        # A level ceiling gives up as well as a floor does (on the r16 twin of geo_island_rev_wall_00, filmed
-        # under wall cabinets with neither floor nor worktop in view, the camera axes tilted it 9.4 degrees);
-        # the ceiling's height above the floor varies too much (2.4-3 m) to give the floor's.
+        # A level ceiling gives up as well as a floor does (on the 4988aea and 7120ead twins of
+        # geo_island_rev_wall_00, filmed under wall cabinets with neither floor nor worktop in view, the camera
+        # axes tilted it 9.4 degrees); the ceiling's height above the floor varies too much (2.4-3 m) to give
+        # the floor's.
         up, _, inliers = ceiling
-        origin, source = p_camera0 - config.assumed_camera_height_m * up, "ceiling_plane"
-        floor_note = f"not seen: assumed {config.assumed_camera_height_m:.2f} m below camera 0 (a standing adult's eye height)"
+        origin, source, floor_note = p_camera0 - config.assumed_camera_height_m * up, "ceiling_plane", eye_height
         log.warning("no floor plane found: gravity from the ceiling, and the floor assumed %.2f m below camera 0 "
                     "(a robot planned in this twin stands on that guess)", config.assumed_camera_height_m)
     else:
         origin, inliers, source = p_camera0 - config.assumed_camera_height_m * up, 0, "camera_axes"
-        floor_note = f"not seen: assumed {config.assumed_camera_height_m:.2f} m below camera 0 (a standing adult's eye height)"
+        floor_note = eye_height
         log.warning("no floor plane found: gravity from the camera axes, and the floor assumed %.2f m below "
                     "camera 0 (a robot planned in this twin stands on that guess)", config.assumed_camera_height_m)
     x_axis = T_world_camera[0, :3, 0] - up * (up @ T_world_camera[0, :3, 0])
