@@ -32,6 +32,7 @@ from funrec.formats.meshes import as_written
 from funrec.formats.staged_folder import refuse_output_over_input
 from funrec.formats.twin import ArticulatedPart, TwinArticulation, make_part
 from funrec.formats.twin_config import TWIN_CONFIG_FILE, write_twin_config
+from funrec.formats.twin_gravity import TWIN_GRAVITY_FILE, TwinGravity, write_twin_gravity
 from funrec.geometry.transforms import transform_points
 from funrec.parts.articulation import (
     ArticulationConfig,
@@ -581,6 +582,7 @@ def _reconstruct(capture_dir: str | Path, out_dir: str | Path, config: Reconstru
         if config.align_gravity:
             alignment = timed("gravity", estimate_gravity, meshes.static.vertices, trajectory.T_world_camera, config.gravity)
             T_twin_world = alignment.T_aligned_world
+            write_twin_gravity(writer.path(TWIN_GRAVITY_FILE), TwinGravity(alignment.source, alignment.floor))
         written: dict[str, trimesh.Trimesh] = {}  # what the PLY files hold, handed to the export
 
         def write_mesh(mesh: trimesh.Trimesh, relative: str) -> trimesh.Trimesh:

@@ -649,6 +649,7 @@ def T_scene_plan_from_gt(plan: Plan, gt_dir: str | Path) -> FloatArray:
     """
     from funrec.formats.camera_poses import read_camera_poses
     from funrec.formats.ground_truth import read_ground_truth
+    from funrec.formats.twin_gravity import read_twin_gravity
 
     gt = read_ground_truth(gt_dir)
     source = str(plan.provenance.get("task_source", ""))
@@ -659,9 +660,11 @@ def T_scene_plan_from_gt(plan: Plan, gt_dir: str | Path) -> FloatArray:
     T = gt.T_scene_world @ gt.T_world_camera[0] @ np.linalg.inv(T_twin_camera)
     lift = float(T[2, 3])  # the height in the scene of the twin's floor under camera 0 (the scene's floor: z = 0)
     if abs(lift) > FLOOR_HEIGHT_TOLERANCE:
+        gravity = read_twin_gravity(twin_dir)
+        why = "was the floor seen in the capture?" if gravity is None else f"the twin says its floor was {gravity.floor}"
         raise PlanningError(
             f"{twin_dir}: the twin's floor lies {lift:+.2f} m off the scene's; a robot planned in it would stand "
-            "in the air or in the floor of the true scene (was the floor seen in the capture?)"
+            f"in the air or in the floor of the true scene ({why})"
         )
     tilt = float(np.arccos(np.clip(T[2, 2], -1.0, 1.0)))
     if tilt > GRAVITY_TILT_TOLERANCE:

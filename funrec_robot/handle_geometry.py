@@ -12,7 +12,11 @@ contact point lies on the handle (bars 1.6-2.1 cm, knobs and thick bars 2.9-3.7 
 
 The handle itself is what stands proud of that front near the contact: its extent along the handle axis
 the affordance gives tells a knob (1.7-3.2 cm on the bench twins) from a bar (14-40 cm); a knob is grasped
-with the fingers closing horizontally, which lets the grasp pitch far more for a low drawer.
+with the fingers closing horizontally, which lets the grasp pitch far more for a low drawer. A knob is grasped
+at its centre; a bar where the hand held it along the bar, but centred across it: the affordance's contact
+can miss the bar sideways by more than the jaws forgive (4.4 cm on the 4988aea-era twin of
+``plain_rev_cabinet_left_00``, where the fingertip then struck the bar at 157 N), while the part mesh shows
+the bar itself where it is.
 """
 
 from __future__ import annotations
@@ -77,6 +81,15 @@ MIN_HANDLE_POINTS = 20
 """Fewer handle points than this: the handle's shape is not told."""
 KNOB_MAX_LENGTH_M = 0.06
 """A handle no longer than this along its axis is a knob, m."""
+BAR_MAX_WIDTH_M = 0.05
+"""A bar's points across it (5th to 95th percentile) span at most this, m: the bench's bars are 8-20 mm,
+Meta-World's drawer bar 51 mm in its other direction; a wider spread of points proud of the front is not one
+bar (the hand's own reconstruction, a frame), and the contact is then left where it is."""
+BAR_SHIFT_MIN_M = 0.005
+"""The contact is moved onto the bar's middle only when it lies farther than this off it, m: a twin's part is
+fused on a 5 mm grid, so a smaller shift is the mesh's noise (a 0.3 mm shift of the 7120ead twin of
+plain_rev_dishwasher_00's contact turned its base placement, at the edge of the reach window, from found to
+not found)."""
 
 
 @dataclass(frozen=True)
@@ -89,6 +102,10 @@ class HandleShape:
     """Extent of the handle's points along the handle axis, m; None if not told."""
     p_centre: FloatArray | None
     """(3,) centroid of the handle's points, moved along the approach to the contact's depth; None if not told."""
+    p_bar: FloatArray | None = None
+    """(3,) the contact moved across the handle axis to the median of the handle's points across it (a bar's
+    middle, ``BAR_MAX_WIDTH_M``; not for less than ``BAR_SHIFT_MIN_M``), along the axis and in depth where it
+    was; None if not told or not one bar."""
 
     @property
     def is_knob(self) -> bool:
@@ -121,7 +138,12 @@ def measure_handle(
         return HandleShape(standoff, None, None)
     centre = p_part[handle].mean(axis=0)
     centre -= approach * float((centre - p_contact) @ approach)
-    return HandleShape(standoff, float(np.ptp(along[handle])), centre)
+    low, high = np.percentile(across[handle], [5.0, 95.0])
+    p_bar = None
+    shift = float(np.median(across[handle]))
+    if high - low <= BAR_MAX_WIDTH_M:
+        p_bar = p_contact + np.cross(approach, handle_axis) * (shift if abs(shift) > BAR_SHIFT_MIN_M else 0.0)
+    return HandleShape(standoff, float(np.ptp(along[handle])), centre, p_bar)
 
 
-__all__ = ["KNOB_MAX_LENGTH_M", "HandleShape", "front_standoff", "measure_handle"]
+__all__ = ["BAR_MAX_WIDTH_M", "BAR_SHIFT_MIN_M", "BIN_M", "FRONT_SHARE", "KNOB_MAX_LENGTH_M", "MIN_HANDLE_POINTS", "PROUD_M", "HandleShape", "front_standoff", "measure_handle"]

@@ -20,7 +20,7 @@ from funrec.formats.ground_truth import GroundTruth, read_ground_truth
 from funrec.formats.twin import ArticulatedPart, read_articulation
 from funrec.typed import FloatArray
 from funrec_robot.errors import format_names
-from funrec_robot.handle_geometry import measure_handle
+from funrec_robot.handle_geometry import BIN_M, FRONT_SHARE, MIN_HANDLE_POINTS, PROUD_M, measure_handle
 from funrec_robot.scene import part_front, part_joint
 from funrec_robot.task import ArticulationTask
 
@@ -163,7 +163,13 @@ def task_from_ground_truth(
 MESH_GRASP_INSET_M = 0.06
 """Without affordances, a door is grasped this far in from its edge farthest from the hinge, m (where handles sit)."""
 MESH_FRONT_BAND_M = 0.01
-"""Without affordances, part points within this distance of the part's front-most point form its front, m."""
+"""Without affordances, part points within this distance of the part's front's depth form its front, m."""
+MESH_HANDLE_DEPTH_M = 0.08
+"""Without affordances, points standing more than this in front of the part's front are not its handle (the
+bench's handles stand 1.6-3.7 cm proud, Meta-World's drawer bar 18 cm: left to the guess), m."""
+MESH_HANDLE_RADIUS_M = 0.04
+"""Without affordances, the handle is the mesh points proud of the front within this distance of its densest
+point, m: a knob (1.6-3.2 cm) whole, or a stretch of a bar."""
 
 
 def _part_points(root: Path, joint: ArticulatedPart) -> FloatArray:
@@ -179,13 +185,41 @@ def _part_points(root: Path, joint: ArticulatedPart) -> FloatArray:
         raise FormatError(mesh_path, f"cannot read the part mesh: {exc}") from None
 
 
-def _mesh_grasp(root: Path, joint: ArticulatedPart) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Contact point, approach and handle axis guessed from a part's mesh when the twin has no affordance.
+def _mesh_handle(p_world: FloatArray, front: float, depth: FloatArray, radial: FloatArray | None) -> FloatArray | None:
+    """Centre of the handle a part's mesh shows standing proud of its front, or None.
+
+    Handle points stand ``PROUD_M`` to ``MESH_HANDLE_DEPTH_M`` in front of the front (``depth`` of each point,
+    ``front`` the front's); on a door only those in the half of it away from the hinge (``radial``: distance
+    from the hinge axis) count, where handles sit. The handle is the densest spot among them: the point with
+    the most others within ``MESH_HANDLE_RADIUS_M``, and the centroid of those (a knob, or a stretch of a
+    bar) is returned.
+    """
+    proud = (depth >= front + PROUD_M) & (depth <= front + MESH_HANDLE_DEPTH_M)
+    if radial is not None:
+        proud &= radial >= 0.5 * float(radial.max())
+    candidates = p_world[proud]
+    if len(candidates) < MIN_HANDLE_POINTS:
+        return None
+    # Pairwise counts: a handle is a few hundred mesh points at most (a 5 mm part voxel grid).
+    close = np.linalg.norm(candidates[:, None, :] - candidates[None, :, :], axis=2) <= MESH_HANDLE_RADIUS_M
+    seed = int(np.argmax(close.sum(axis=1)))
+    if int(close[seed].sum()) < MIN_HANDLE_POINTS:
+        return None
+    return candidates[close[seed]].mean(axis=0)
+
+
+def _mesh_grasp(root: Path, joint: ArticulatedPart) -> tuple[FloatArray, FloatArray, FloatArray, bool]:
+    """Contact point, approach and handle axis guessed from a part's mesh when the twin has no affordance, and
+    whether the contact is on a handle the mesh shows.
 
     The front is the side of the part facing the cameras that tracked it (the mesh's thinnest principal
-    direction, signed towards them). A door is grasped on its front, ``MESH_GRASP_INSET_M`` in from the edge
-    farthest from the hinge, at the part's mid-height, with a handle along the hinge axis; a drawer in the
-    middle of its front with a handle across the motion.
+    direction, signed towards them), at the depth of the first well-filled depth bin from that side (not the
+    front-most point: a knob stands 3 cm proud of it). A handle standing proud of the front (``_mesh_handle``)
+    is grasped at its centre (on the twin of ``geo_angled_rev_cabinet_00``, whose door the hand never came
+    near, the knob lay 27 cm above the door's mid-height, where the guess below had put the grasp 3.5 cm off
+    the true door). Without one, a door is grasped on its front, ``MESH_GRASP_INSET_M`` in from the edge
+    farthest from the hinge, at the part's mid-height; a drawer in the middle of its front. The handle axis is
+    the hinge axis for a door, across the motion for a drawer.
     """
     from funrec.formats.camera_poses import read_camera_poses
 
@@ -203,21 +237,35 @@ def _mesh_grasp(root: Path, joint: ArticulatedPart) -> tuple[FloatArray, FloatAr
     _, _, Vt = np.linalg.svd(p_world - centre, full_matrices=False)
     normal = Vt[2] if float(Vt[2] @ (p_world_viewer - centre)) >= 0.0 else -Vt[2]
     depth = (p_world - centre) @ normal
-    front = p_world[depth >= depth.max() - MESH_FRONT_BAND_M]
+    # The front's depth: the first bin from the viewer's side with FRONT_SHARE of the fullest (as
+    # handle_geometry.front_standoff does about a contact), then the median depth of the points near it.
+    counts, edges = np.histogram(depth, bins=np.arange(depth.min(), depth.max() + BIN_M, BIN_M))
+    k = int(np.flatnonzero(counts >= FRONT_SHARE * counts.max())[-1])
+    near_front = np.abs(depth - 0.5 * (edges[k] + edges[k + 1])) <= MESH_FRONT_BAND_M
+    front_depth = float(np.median(depth[near_front]))
+    front = p_world[np.abs(depth - front_depth) <= MESH_FRONT_BAND_M]
+    radial = None
     if joint.joint_type == "revolute":
         handle_axis = joint.axis_world
-        radial = front - joint.pivot_world - np.outer((front - joint.pivot_world) @ handle_axis, handle_axis)
-        reach = np.linalg.norm(radial, axis=1)
+        offsets = p_world - joint.pivot_world
+        radial = np.linalg.norm(offsets - np.outer(offsets @ handle_axis, handle_axis), axis=1)
+    else:
+        handle_axis = np.cross(normal, joint.axis_world)
+    handle = _mesh_handle(p_world, front_depth, depth, radial)
+    if handle is not None:
+        return handle, -normal, handle_axis, True
+    if joint.joint_type == "revolute":
+        radial_front = front - joint.pivot_world - np.outer((front - joint.pivot_world) @ handle_axis, handle_axis)
+        reach = np.linalg.norm(radial_front, axis=1)
         edge = front[int(np.argmax(reach))]
-        towards_hinge = -radial[int(np.argmax(reach))]
+        towards_hinge = -radial_front[int(np.argmax(reach))]
         towards_hinge -= normal * float(towards_hinge @ normal)  # stay on the front
         towards_hinge /= max(float(np.linalg.norm(towards_hinge)), 1e-9)
         contact = edge + MESH_GRASP_INSET_M * towards_hinge
         contact = contact + handle_axis * float((centre - contact) @ handle_axis)
     else:
         contact = front.mean(axis=0)
-        handle_axis = np.cross(normal, joint.axis_world)
-    return contact, -normal, handle_axis
+    return contact, -normal, handle_axis, False
 
 
 def task_from_twin(
@@ -235,7 +283,8 @@ def task_from_twin(
     or whose affordances miss the part, falls back to a grasp guessed from the part's mesh
     (``_mesh_grasp``), logs a warning and says so in ``task.source`` (hence in the plan's provenance).
     The handle's standoff from the part's front is measured on the part mesh, and a handle as short as a
-    knob is taken for one (no handle axis: the fingers close horizontally; ``measure_handle``).
+    knob is taken for one (no handle axis: the fingers close horizontally; ``measure_handle``), and a bar is
+    grasped centred across it.
 
     Args:
         twin_dir: twin folder (FORMATS.md section 2).
@@ -249,11 +298,15 @@ def task_from_twin(
         FormatError: a missing or malformed file or field; PlanningError: unknown part or hold.
     """
     from funrec.formats.affordances import AFFORDANCES_FILE
+    from funrec.formats.twin_gravity import read_twin_gravity
     from funrec.query import load_affordances
 
     root = Path(twin_dir)
     articulation_path, affordances_path = root / "articulation.json", root / AFFORDANCES_FILE
     twin = read_articulation(articulation_path)
+    gravity = read_twin_gravity(root)
+    if gravity is not None and not gravity.floor_seen:
+        log.warning("%s: the robot stands on a floor the capture did not show (%s)", root, gravity.floor)
     names = [p.name for p in twin.parts]
     joint = twin.parts[_pick_part(names, part, articulation_path)]
     affordance, why = None, f"{affordances_path} is missing"
@@ -262,6 +315,7 @@ def task_from_twin(
         affordance = affordances.part(joint.name)
         why = f"{affordances_path}: {dict(affordances.missing).get(joint.name, 'part not in the file')}"
     demo_times, demo_states = np.zeros(0), np.zeros(0)
+    on_handle = False
     if affordance is not None:
         p_contact = affordance.contact_point
         approach, handle_axis = affordance.T_world_grasp[:3, 2], affordance.T_world_grasp[:3, 0]
@@ -272,16 +326,21 @@ def task_from_twin(
         source, files = f"twin:{root.resolve()}", (articulation_path, affordances_path)
     else:
         log.warning("part '%s': no affordance (%s); grasping it where its mesh suggests a handle", joint.name, why)
-        p_contact, approach, handle_axis = _mesh_grasp(root, joint)
+        p_contact, approach, handle_axis, on_handle = _mesh_grasp(root, joint)
         source, files = f"twin:{root.resolve()}", (articulation_path,)
+        why += "; the grasp is on a handle the part mesh shows" if on_handle else "; the grasp is a guess on the part's front"
     # The handle's standoff from the part's front and its shape, measured on the part mesh around a contact
     # the hand made (not around one guessed on the front itself: the planner then assumes a standoff).
     standoff = None
-    if affordance is not None:
+    if affordance is not None or on_handle:
         shape = measure_handle(_part_points(root, joint), p_contact, approach, handle_axis)
         standoff = shape.standoff
         if shape.is_knob and shape.p_centre is not None:
             p_contact, handle_axis = shape.p_centre, None
+        elif shape.p_bar is not None and np.any(shape.p_bar != p_contact):
+            log.info("part '%s': grasp centred across its bar, %.1f mm from the affordance's contact point",
+                     joint.name, 1e3 * float(np.linalg.norm(shape.p_bar - p_contact)))
+            p_contact = shape.p_bar
     T = np.eye(4) if T_scene_twin is None else np.asarray(T_scene_twin, dtype=np.float64)
     return ArticulationTask(
         part=joint.name,

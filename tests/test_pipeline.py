@@ -108,6 +108,8 @@ def test_reconstruct_smoke_captures_end_to_end(smoke_captures: dict[str, Path], 
         assert json.loads((tmp_path / twin / "affordances.json").read_text())["format"] == "funrec-affordances/1"
         recorded = json.loads((tmp_path / twin / "config.json").read_text())
         assert recorded["format"] == "funrec-config/1" and recorded["config"]["align_gravity"] is True
+        gravity = json.loads((tmp_path / twin / "gravity.json").read_text())
+        assert gravity["format"] == "funrec-gravity/1" and gravity["floor_seen"] == (gravity["source"] == "floor_plane")
 
 
 def test_without_masks_the_part_moving_with_the_scene_change_ranks_first() -> None:

@@ -171,24 +171,31 @@ def test_task_from_twin_maps_the_affordance_frame_into_the_scene(tmp_path) -> No
         task_from_twin(tmp_path, "part_0", interaction=3)
 
 
+def _door_twin(root, mesh) -> None:
+    """A twin folder in ``root`` without affordances: one door (``mesh``, a trimesh) hinged on the vertical line
+    x = 1.0, y = 0, tracked by cameras at (1.2, -2.0, 1.4)."""
+    from funrec.formats.camera_poses import write_camera_poses
+
+    (root / "meshes").mkdir()
+    mesh.export(root / "meshes" / "part_0.ply")
+    part = make_part("part_0", "revolute", [0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0, 1], [0.0, 0.5], (0.0, 1.5),
+                     mesh="meshes/part_0.ply")
+    write_articulation(root / "articulation.json", TwinArticulation(frame_count=2, parts=(part,)))
+    T_world_camera = np.tile(np.eye(4), (2, 1, 1))
+    T_world_camera[:, :3, 3] = [1.2, -2.0, 1.4]
+    write_camera_poses(root / "camera_poses.txt", T_world_camera)
+
+
 def test_task_from_twin_without_affordances_grasps_the_mesh_and_says_so(tmp_path, caplog) -> None:
     """A door 0.5 m wide (x from 1.0 to 1.5), hinged on its x = 1.0 edge, facing cameras at y = -2: the
     fallback grasp is on its front (y = -0.02), MESH_GRASP_INSET_M in from the free edge, at mid-height."""
     import trimesh
 
-    from funrec.formats.camera_poses import write_camera_poses
     from funrec_robot.task_sources import MESH_GRASP_INSET_M
 
-    (tmp_path / "meshes").mkdir()
     door = trimesh.creation.box(extents=[0.5, 0.02, 0.8])
     door.apply_translation([1.25, -0.01, 0.9])
-    door.export(tmp_path / "meshes" / "part_0.ply")
-    part = make_part("part_0", "revolute", [0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0, 1], [0.0, 0.5], (0.0, 1.5),
-                     mesh="meshes/part_0.ply")
-    write_articulation(tmp_path / "articulation.json", TwinArticulation(frame_count=2, parts=(part,)))
-    T_world_camera = np.tile(np.eye(4), (2, 1, 1))
-    T_world_camera[:, :3, 3] = [1.2, -2.0, 1.4]
-    write_camera_poses(tmp_path / "camera_poses.txt", T_world_camera)
+    _door_twin(tmp_path, door)
     with caplog.at_level("WARNING"):
         task = task_from_twin(tmp_path, "part_0")
     # box vertices are exact; the mesh centroid is the box centre, so the numbers are exact to round-off
@@ -197,6 +204,29 @@ def test_task_from_twin_without_affordances_grasps_the_mesh_and_says_so(tmp_path
     np.testing.assert_allclose(np.abs(task.handle_axis_world), [0.0, 0.0, 1.0], atol=1e-9)
     assert task.grasp_source.startswith("mesh fallback") and "affordances.json is missing" in task.grasp_source
     assert "no affordance" in caplog.text
+
+
+def test_task_from_twin_without_affordances_grasps_a_knob_the_mesh_shows(tmp_path) -> None:
+    """The same door with a knob (radius 1.6 cm, 2.5 cm proud of the front) near its top at the free edge, as on
+    the twin of geo_angled_rev_cabinet_00 whose door the hand never came near: the grasp is on the knob (within
+    3 mm of its centre across the front: the knob's proud half's centroid, moved to the knob's middle by
+    measure_handle), not at the door's mid-height, and taken as a knob (no handle axis)."""
+    import trimesh
+
+    door = trimesh.creation.box(extents=[0.5, 0.02, 0.8])
+    for _ in range(5):  # vertices all over the faces, as a fused mesh has
+        door = door.subdivide()
+    door.apply_translation([1.25, -0.01, 0.9])
+    knob_centre = np.array([1.45, -0.045, 1.2])
+    knob = trimesh.creation.icosphere(subdivisions=3, radius=0.016)
+    knob.apply_translation(knob_centre)
+    _door_twin(tmp_path, trimesh.util.concatenate([door, knob]))
+    task = task_from_twin(tmp_path, "part_0")
+    np.testing.assert_allclose(task.p_world_contact[[0, 2]], knob_centre[[0, 2]], atol=0.003)
+    # The knob's points tilt the mesh's principal plane by about a degree (0.016 in a component).
+    np.testing.assert_allclose(task.approach_world, [0.0, 1.0, 0.0], atol=0.02)
+    assert task.handle_axis_world is None
+    assert "a handle the part mesh shows" in task.grasp_source
 
 
 def test_unknown_part_lists_the_parts(scenes) -> None:

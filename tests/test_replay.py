@@ -78,6 +78,7 @@ def test_a_twin_whose_floor_is_not_the_scenes_is_refused(twin, tmp_path) -> None
     from types import SimpleNamespace
 
     from funrec.formats.camera_poses import read_camera_poses, write_camera_poses
+    from funrec.formats.twin_gravity import TWIN_GRAVITY_FILE, TwinGravity, write_twin_gravity
     from funrec_robot.check import FLOOR_HEIGHT_TOLERANCE, T_scene_plan_from_gt
 
     twin_dir, gt = twin
@@ -89,7 +90,11 @@ def test_a_twin_whose_floor_is_not_the_scenes_is_refused(twin, tmp_path) -> None
     T_world_camera = poses.T_world_camera.copy()
     T_world_camera[:, 2, 3] -= 0.9  # the twin's floor 0.9 m above the true one: the cameras 0.9 m lower in it
     write_camera_poses(lifted / "camera_poses.txt", T_world_camera, poses.frames)
-    with pytest.raises(PlanningError, match=r"the twin's floor lies \+0\.90 m off the scene's"):
+    with pytest.raises(PlanningError, match=r"the twin's floor lies \+0\.90 m off the scene's.*was the floor seen"):
+        T_scene_plan_from_gt(SimpleNamespace(provenance={"task_source": f"twin:{lifted}"}), gt)
+    # A twin that says where its floor came from (gravity.json) is quoted.
+    write_twin_gravity(lifted / TWIN_GRAVITY_FILE, TwinGravity("worktop_plane", "not seen: assumed 0.90 m below a worktop"))
+    with pytest.raises(PlanningError, match=r"the twin says its floor was not seen: assumed 0\.90 m below a worktop"):
         T_scene_plan_from_gt(SimpleNamespace(provenance={"task_source": f"twin:{lifted}"}), gt)
     T_world_camera[:, 2, 3] += 0.9 - 0.8 * FLOOR_HEIGHT_TOLERANCE
     write_camera_poses(lifted / "camera_poses.txt", T_world_camera, poses.frames)

@@ -102,6 +102,30 @@ def test_measure_handle_tells_a_knob_from_a_bar_and_centres_a_knob() -> None:
     assert measure_handle(front, contact, approach, axis).length is None  # no handle proud of the front
 
 
+def test_measure_handle_centres_a_bar_across_but_not_along() -> None:
+    """An affordance's contact can miss a bar sideways (4.4 cm on a twin of plain_rev_cabinet_left_00: the
+    fingertip struck the bar at 157 N); the grasp is moved across the bar onto its middle, and left where the
+    hand held it along the bar and in depth. Within 2 mm: the 8 mm bar's points are uniform across it, 2000 of
+    them. Proud points spread wider than a bar (a hand fused into the part) leave the contact alone."""
+    from funrec_robot.handle_geometry import measure_handle
+
+    rng = np.random.default_rng(2)
+    approach, axis = np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0])  # a vertical bar, across it is x
+    front = _door_front(rng, False)
+    centre = np.array([0.1, -0.024, 0.1])
+    bar = centre + np.column_stack([rng.uniform(-0.004, 0.004, 2000), rng.uniform(-0.012, 0.0, 2000),
+                                    rng.uniform(-0.07, 0.07, 2000)])
+    contact = centre + [-0.044, 0.01, 0.05]
+    shape = measure_handle(np.vstack([front, bar]), contact, approach, axis)
+    assert not shape.is_knob and shape.p_bar is not None
+    np.testing.assert_allclose(shape.p_bar, [centre[0], contact[1], contact[2]], atol=0.002)
+    # Within the part mesh's 5 mm grid of the bar's middle, the contact stays exactly where it was.
+    near = measure_handle(np.vstack([front, bar]), contact + [0.044 - 0.003, 0.0, 0.0], approach, axis)
+    assert near.p_bar is not None and np.array_equal(near.p_bar, contact + [0.041, 0.0, 0.0])
+    blob = centre + rng.uniform(-0.045, 0.045, (2000, 3)) * [1.0, 0.0, 1.0] - [0.0, 0.01, 0.0]
+    assert measure_handle(np.vstack([front, blob]), centre + [0.0, 0.0, 0.0], approach, axis).p_bar is None
+
+
 def _one_jaw_geometry():
     """A hand like Spot's as grasping sees it: finger boxes from 11 cm behind the grasp frame to 3.9 cm ahead of
     it, 7 cm apart, and a palm box (the wrist housing) up to 3 mm ahead of the grasp frame."""
