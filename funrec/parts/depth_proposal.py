@@ -198,6 +198,7 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
     static = depth_fit(coarse, coarse_poses, "prismatic", normal, None, hypothesis_points, _held_still(search),
                        coarse_arrival, hypothesis_normals)[1]
     best_of: dict[str, tuple[float, str, FloatArray, FloatArray | None]] = {}
+    slides: list[tuple[float, str, FloatArray, FloatArray | None]] = []
     rival_cost = np.inf
     hypotheses = _hypotheses(points, normal, u_axis, v_axis, config.hinge_offsets_m)
 
@@ -216,7 +217,10 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
             continue
         if k == len(hypotheses):
             rival_cost = cost
-        elif joint_type not in best_of or cost < best_of[joint_type][0]:
+            continue
+        if joint_type == "prismatic":
+            slides.append((cost, joint_type, axis, pivot))
+        if joint_type not in best_of or cost < best_of[joint_type][0]:
             best_of[joint_type] = (cost, joint_type, axis, pivot)
     # The best of each joint type is refined before they are compared: the grid of hypotheses is
     # coarse (principal axes, 3 cm hinge offsets) and a refined hinge can beat a slide that the
@@ -246,6 +250,17 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
     if rival_held:
         logger.info("depth proposal: the tracks' %s (cost %.3f) explains the surface that left as well as the best "
                     "hypothesis, %s (cost %.3f)", rival[0], rival_cost, best[1], best[0])
+    if rival is not None and rival[0] == best[1] == "prismatic" and slides:
+        # The tracks' slide agreeing with one of depth's slides (within 10 deg; tracks on a plain front read its
+        # normal up to 8 deg off) is two cues against one: depth's other slide replaces it only when it explains
+        # the surface twice as well (a right and a wrong joint differ 2-5x, see rival_margin). A drawer pulled
+        # towards a camera above it leaves little surface that a later frame sees through (strips along the gaps
+        # between fronts), where a slide within the front's plane scored 0.139 against 0.165 along its normal,
+        # the tracks' slide 1 deg from that normal (geo_island_pri_drawer_00: axis 90 deg off).
+        rival_axis = np.asarray(rival[1], dtype=float)
+        agreeing = max(slides, key=lambda b: abs(float(np.dot(b[2], rival_axis))))
+        if abs(float(np.dot(agreeing[2], rival_axis))) > np.cos(np.deg2rad(10.0)) and not best[0] < 0.5 * agreeing[0]:
+            best = agreeing
     cost, joint_type, axis, pivot = best
     if rival is not None and rival[0] == joint_type == "revolute":
         # a door's tracks lie on its leaf: depth agrees on the type, the tracks' part stands (swapping in
