@@ -404,3 +404,23 @@ def test_a_drawer_front_normal_is_refitted_on_the_closed_front_around_a_thin_str
     assert error_deg(grown) < 0.5, error_deg(grown)
     assert grown @ tilted > 0  # the sign it was given
     assert error_deg(_grown_normal(views, points, tilted, DepthProposalConfig(front_growth_rounds=0))) > 2.9
+
+
+def test_the_tracks_slide_agreeing_with_a_depth_slide_stands_unless_the_other_is_twice_as_good() -> None:
+    """geo_island_pri_drawer_00's costs: in-plane 0.139, along the normal 0.165, the tracks' slide
+    1 deg from the normal: the normal stands; at 0.08 (over 2x better) the in-plane slide wins; a
+    tracks' slide 30 deg from every hypothesis agrees with none."""
+    from funrec.parts.depth_proposal import _slide_agreeing_with_tracks
+
+    normal, in_plane = np.array([0.0, 0.57, -0.82]), np.array([0.0, -0.82, -0.57])
+    normal /= np.linalg.norm(normal)
+    in_plane /= np.linalg.norm(in_plane)
+    tracks = normal + np.array([0.017, 0.0, 0.0])
+    tracks /= np.linalg.norm(tracks)
+    along, within = (0.165, "prismatic", normal, None), (0.139, "prismatic", in_plane, None)
+    assert _slide_agreeing_with_tracks(within, [along, within], tracks) is along
+    better = (0.08, "prismatic", in_plane, None)
+    assert _slide_agreeing_with_tracks(better, [along, better], tracks) is better
+    c, s = np.cos(np.deg2rad(30)), np.sin(np.deg2rad(30))
+    off = c * normal + s * np.array([1.0, 0.0, 0.0])
+    assert _slide_agreeing_with_tracks(within, [along, within], off) is within

@@ -251,16 +251,7 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
         logger.info("depth proposal: the tracks' %s (cost %.3f) explains the surface that left as well as the best "
                     "hypothesis, %s (cost %.3f)", rival[0], rival_cost, best[1], best[0])
     if rival is not None and rival[0] == best[1] == "prismatic" and slides:
-        # The tracks' slide agreeing with one of depth's slides (within 10 deg; tracks on a plain front read its
-        # normal up to 8 deg off) is two cues against one: depth's other slide replaces it only when it explains
-        # the surface twice as well (a right and a wrong joint differ 2-5x, see rival_margin). A drawer pulled
-        # towards a camera above it leaves little surface that a later frame sees through (strips along the gaps
-        # between fronts), where a slide within the front's plane scored 0.139 against 0.165 along its normal,
-        # the tracks' slide 1 deg from that normal (geo_island_pri_drawer_00: axis 90 deg off).
-        rival_axis = np.asarray(rival[1], dtype=float)
-        agreeing = max(slides, key=lambda b: abs(float(np.dot(b[2], rival_axis))))
-        if abs(float(np.dot(agreeing[2], rival_axis))) > np.cos(np.deg2rad(10.0)) and not best[0] < 0.5 * agreeing[0]:
-            best = agreeing
+        best = _slide_agreeing_with_tracks(best, slides, np.asarray(rival[1], dtype=float))
     cost, joint_type, axis, pivot = best
     if rival is not None and rival[0] == joint_type == "revolute":
         # a door's tracks lie on its leaf: depth agrees on the type, the tracks' part stands (swapping in
@@ -549,6 +540,26 @@ def _hinge_neighbours(normal: FloatArray, config: DepthProposalConfig):
                 + [(axis, pivot + sign * step_m * across) for sign in (1, -1)])
 
     return neighbours
+
+
+SLIDE_AGREEMENT_DEG = 10.0
+"""The tracks' slide agrees with one of depth's slides within this angle (tracks on a plain front
+read its normal up to 8 deg off: plain_pri_drawer_01 at f8e389e)."""
+SLIDE_OVERRIDE_RATIO = 0.5
+"""Depth's other slide replaces an agreed one only with at most this fraction of its cost: a right
+and a wrong joint differ 2-5x once the part has moved (``rival_margin``)."""
+
+
+def _slide_agreeing_with_tracks(best: tuple, slides: list[tuple], rival_axis: FloatArray) -> tuple:
+    """The tracks' slide agreeing with one of depth's slide hypotheses (``slides``: (cost, type,
+    axis, pivot)) is two cues against one: that hypothesis stands unless ``best`` explains the
+    surface twice as well. A drawer pulled towards a camera above it leaves little surface that a
+    later frame sees through (strips along the gaps between fronts), where a slide within the
+    front's plane scored 0.139 against 0.165 along its normal, the tracks' slide 1 deg from that
+    normal (geo_island_pri_drawer_00: axis 90 deg off before)."""
+    agreeing = max(slides, key=lambda b: abs(float(np.dot(b[2], rival_axis))))
+    agrees = abs(float(np.dot(agreeing[2], rival_axis))) > np.cos(np.deg2rad(SLIDE_AGREEMENT_DEG))
+    return agreeing if agrees and not best[0] < SLIDE_OVERRIDE_RATIO * agreeing[0] else best
 
 
 def _hypotheses(p: FloatArray, normal: FloatArray, u_axis: FloatArray, v_axis: FloatArray,
