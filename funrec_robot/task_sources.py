@@ -14,6 +14,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import numpy.typing as npt
+from scipy.spatial import cKDTree
 
 from funrec.errors import FormatError, PlanningError
 from funrec.formats.ground_truth import GroundTruth, read_ground_truth
@@ -200,12 +201,14 @@ def _mesh_handle(p_world: FloatArray, front: float, depth: FloatArray, radial: F
     candidates = p_world[proud]
     if len(candidates) < MIN_HANDLE_POINTS:
         return None
-    # Pairwise counts: a handle is a few hundred mesh points at most (a 5 mm part voxel grid).
-    close = np.linalg.norm(candidates[:, None, :] - candidates[None, :, :], axis=2) <= MESH_HANDLE_RADIUS_M
-    seed = int(np.argmax(close.sum(axis=1)))
-    if int(close[seed].sum()) < MIN_HANDLE_POINTS:
+    # Neighbour counts from a k-d tree: the proud points of a noisy twin can be thousands, and pairwise
+    # distances are quadratic in memory.
+    tree = cKDTree(candidates)
+    seed = int(np.argmax(tree.query_ball_point(candidates, MESH_HANDLE_RADIUS_M, return_length=True)))
+    close = np.asarray(tree.query_ball_point(candidates[seed], MESH_HANDLE_RADIUS_M), dtype=np.int64)
+    if len(close) < MIN_HANDLE_POINTS:
         return None
-    return candidates[close[seed]].mean(axis=0)
+    return candidates[np.sort(close)].mean(axis=0)
 
 
 def _mesh_grasp(root: Path, joint: ArticulatedPart) -> tuple[FloatArray, FloatArray, FloatArray, bool]:

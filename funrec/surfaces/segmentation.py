@@ -484,10 +484,10 @@ def _attached(part: BoolArray, seeds: BoolArray, depth_m: Float32Array, jump_rel
         return part
     h, w = part.shape
     index = np.arange(h * w).reshape(h, w)
-    z = depth_m
     tails, heads = [], []
-    for a, b, za, zb in ((index[:-1], index[1:], z[:-1], z[1:]), (index[:, :-1], index[:, 1:], z[:, :-1], z[:, 1:])):
-        both = part[np.unravel_index(a, (h, w))] & part[np.unravel_index(b, (h, w))]
+    for first, second in (((slice(None, -1),), (slice(1, None),)), ((slice(None), slice(None, -1)), (slice(None), slice(1, None)))):
+        a, b, za, zb = index[first], index[second], depth_m[first], depth_m[second]
+        both = part[first] & part[second]
         jump = np.abs(zb - za) > jump_relative * np.minimum(za, zb)
         # a -> b: from a reading to a nearer or not much farther one, or into a dropout (never out of one:
         # depth drops out along the edge of a surface seen edge-on, next to what lies behind it)
@@ -496,8 +496,9 @@ def _attached(part: BoolArray, seeds: BoolArray, depth_m: Float32Array, jump_rel
         tails += [a[forward], b[backward]]
         heads += [b[forward], a[backward]]
     source = h * w
-    tails.append(np.full(int(seeds.sum()), source))
-    heads.append(index[seeds & part])
+    start = index[seeds & part]
+    tails.append(np.full(len(start), source))
+    heads.append(start)
     tail, head = np.concatenate(tails), np.concatenate(heads)
     graph = csr_matrix((np.ones(len(tail), dtype=np.int8), (tail, head)), shape=(h * w + 1, h * w + 1))
     reached = np.zeros(h * w + 1, dtype=bool)
