@@ -179,6 +179,13 @@ def test_depth_replaces_a_wrong_rival_joint_and_keeps_a_right_one() -> None:
     assert replaced.rival_held is False
     kept = propose_part(capture, trajectory, rival=("revolute", AXIS.copy(), HINGE.copy()))
     assert kept is not None and kept.rival_held and kept.joint_type == "revolute"  # depth confirms the hinge
+    # A hinge of the same type but not this door's (tracks of the wall beside it: 50 deg off, 30 cm
+    # away) is replaced too: same type is not the same joint (plain_rev_wall_cabinet_01 at 665d2eb).
+    tilted = Rotation.from_rotvec(np.deg2rad(50.0) * np.array([1.0, 0.0, 0.0])).apply(AXIS)
+    wrong_hinge = propose_part(capture, trajectory, rival=("revolute", tilted, HINGE + [0.3, 0.0, 0.0]))
+    assert wrong_hinge is not None and wrong_hinge.joint_type == "revolute" and not wrong_hinge.rival_held
+    axis_error_deg = np.rad2deg(np.arccos(min(1.0, abs(float(wrong_hinge.axis_world @ AXIS)))))
+    assert axis_error_deg < 3.0, axis_error_deg  # as for the proposal without a rival above
 
 
 def test_hand_masks_that_label_the_proposed_part_itself_are_caught() -> None:

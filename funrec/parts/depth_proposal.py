@@ -253,9 +253,12 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
     if rival is not None and rival[0] == best[1] == "prismatic" and slides:
         best = _slide_agreeing_with_tracks(best, slides, np.asarray(rival[1], dtype=float))
     cost, joint_type, axis, pivot = best
-    if rival is not None and rival[0] == joint_type == "revolute":
-        # a door's tracks lie on its leaf: depth agrees on the type, the tracks' part stands (swapping in
-        # depth's surface cost the textured rev_cabinet_left_00 ADD 95.5 -> 91.1, measured)
+    if rival is not None and rival_held and rival[0] == joint_type == "revolute":
+        # a door's tracks lie on its leaf: depth agrees on the type and the tracks' hinge explains the surface as
+        # well, the tracks' part stands (swapping in depth's surface cost the textured rev_cabinet_left_00 ADD
+        # 95.5 -> 91.1, measured). A tracks' hinge that depth's beats clearly is not that door's: 11 tracks
+        # of a plain wall cabinet, on a hinge 50 deg off, cost 0.212 against depth's 0.122
+        # (plain_rev_wall_cabinet_01 at 665d2eb: the tracks' part stood, was turned into a slide and crashed).
         return DepthProposal(joint_type, axis, pivot, points, np.zeros(F), cost, static, rival_cost, True)
     # A slide keeps depth's axis, the front's normal or an edge of the surface it uncovered (see above), also
     # against the tracks' slide: a drawer's tracks often sit on what it carries, on the walls beside a plain

@@ -124,9 +124,11 @@ def _pairs(num: int, config: PartMotionConfig) -> list[tuple[int, int, bool]]:
     return pairs
 
 
-def _measure_edges(p: FloatArray, vis: BoolArray, config: PartMotionConfig, rng: np.random.Generator) -> tuple[PoseEdges, float]:
+def _measure_edges(p: FloatArray, vis: BoolArray, config: PartMotionConfig,
+                   rng: np.random.Generator) -> tuple[PoseEdges, float] | None:
     """RANSAC every pair; Omega = sum_k A_k^T A_k / sigma_r^2 with A_k = [-[q_k]x, I], the
-    Gauss-Newton information of a rigid fit of the inliers q_k (relative to their centroid)."""
+    Gauss-Newton information of a rigid fit of the inliers q_k (relative to their centroid). None
+    when no frame pair shares ``min_correspondences`` inlier tracks."""
     rows, rms = [], []
     for i, j, loop in _pairs(len(p), config):
         common = np.flatnonzero(vis[i] & vis[j])
@@ -145,7 +147,7 @@ def _measure_edges(p: FloatArray, vis: BoolArray, config: PartMotionConfig, rng:
         if not loop:
             rms.append(fit.rms_m)
     if not rows:
-        raise ValueError("no frame pair shares enough part tracks for a pose-graph edge")
+        return None
     sigma_r = float(np.median(rms if rms else [r[5][3, 3] for r in rows])) / np.sqrt(3.0)
     info = np.stack([r[5] for r in rows]) / sigma_r**2
     L = np.swapaxes(np.linalg.cholesky(info), -1, -2)
@@ -250,10 +252,14 @@ def refine_part_motion(
     T_init = joint_transforms(part.joint_type, part.axis_world, part.pivot_world, part.states)
     rms_init, res_init, _ = _track_rms(p, vis, T_init)
     no_edges = np.zeros((0, 2), dtype=np.int64)
-    if not config.use_pose_graph:
+    measured = _measure_edges(p, vis, config, rng) if config.use_pose_graph else None
+    if measured is None:
+        if config.use_pose_graph:
+            logger.warning("part %s: no two frames share %d rigid part tracks: its joint stays as stage 3 fitted it, "
+                           "without the pose-graph refinement", part.joint_type, config.min_correspondences)
         return _output(part, part.axis_world, part.pivot_world, part.states, no_edges, np.zeros(0, bool), np.zeros(0), np.zeros(0),
                        float("nan"), rms_init, rms_init, 0)
-    edges, sigma_p = _measure_edges(p, vis, config, rng)
+    edges, sigma_p = measured
     if config.use_joint_constraint:
         obs = None
         if config.use_track_term:
