@@ -38,6 +38,12 @@ class GraspConfig:
     (a twin): the thickest bar or knob expected; the fingers then close until they stop on it, m."""
     pad_margin: float = 0.003
     """The contact point stays this far inside the finger pads' depth range, m."""
+    touch_speed: float = 0.04
+    """Speed at which the gap between the jaws closes over the widths a handle of unknown thickness may have
+    (``unknown_handle_width`` down to closed), m/s: a guarded close that meets the handle slowly wherever it is.
+    Closed in the usual half second, Spot's hinged jaw met the twins' 8 mm bars at 0.3 m/s, sank 5-8 mm into
+    them before MuJoCo's soft contact pushed back, and wedged in the bar with 100-500 N (9 of 23 twin parts
+    passed); at this speed it sinks under a millimetre."""
     grip_margin: float = 0.015
     """Each finger opens this much wider than half the handle's thickness before closing on it, m."""
     grip_squeeze: float = 0.002
@@ -134,6 +140,18 @@ def opening_commands(
     opening = float(np.clip(gripper.command(handle_across(task, tilt) / 2 + config.grip_margin), low, high))
     holding = float(np.clip(gripper.command(task.handle_width / 2 - config.grip_squeeze), low, high))
     return opening, holding
+
+
+def guarded_close(robot: RobotDescription, task: ArticulationTask, config: GraspConfig) -> tuple[float, float] | None:
+    """Where a close onto a handle of unknown thickness slows down, and how fast it then goes on to closed:
+    (command of jaws ``unknown_handle_width`` apart, command units per second for ``touch_speed``); None when the
+    task knows the thickness (the jaws close to it and meet it at rest)."""
+    if task.handle_width is not None:
+        return None
+    gripper = robot.gripper
+    low, high = sorted((gripper.closed, gripper.open))
+    start = float(np.clip(gripper.command(config.unknown_handle_width / 2), low, high))
+    return start, abs(gripper.command(config.touch_speed / 2) - gripper.closed)
 
 
 def release_command(robot: RobotDescription, holding: float, config: GraspConfig) -> float:
@@ -381,6 +399,7 @@ __all__ = [
     "finger_half_opening",
     "grasp_candidates",
     "grasp_depth",
+    "guarded_close",
     "surface_offset",
     "graspable_tilts",
     "handle_across",
