@@ -305,7 +305,13 @@ def jaw_offset(task: ArticulationTask, geometry: RobotGeometry, config: GraspCon
     if geometry.fixed_jaw is None:
         return 0.0
     face, side = geometry.fixed_jaw
-    width = task.handle_width if task.handle_width is not None else config.unknown_handle_width
+    width = task.handle_width
+    if width is None:
+        # A twin's bar is placed off the jaw by the thickness its mesh shows at most: placed as for the thickest
+        # handle expected, Spot's fixed jaw stood 13-17 mm off the twins' 8-15 mm bars; the closing jaw then
+        # pushed the hand (or the part) that far, left the bar at its fingertips, and the hand retreating from
+        # the released bar hooked it with the jaws' teeth (the door dragged 0.16 rad past its target).
+        width = config.unknown_handle_width if task.handle_width_max is None else min(task.handle_width_max, config.unknown_handle_width)
     clearance = config.fixed_jaw_clearance if task.handle_axis_world is not None else config.fixed_jaw_knob_clearance
     centre = face - side * (width / 2.0 + clearance)
     return centre if side * centre < 0.0 else 0.0
