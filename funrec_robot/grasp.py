@@ -38,12 +38,14 @@ class GraspConfig:
     (a twin): the thickest bar or knob expected; the fingers then close until they stop on it, m."""
     pad_margin: float = 0.003
     """The contact point stays this far inside the finger pads' depth range, m."""
-    touch_speed: float = 0.04
+    touch_speed: float = 0.06
     """Speed at which the gap between the jaws closes over the widths a handle of unknown thickness may have
     (``unknown_handle_width`` down to closed), m/s: a guarded close that meets the handle slowly wherever it is.
-    Closed in the usual half second, Spot's hinged jaw met the twins' 8 mm bars at 0.3 m/s, sank 5-8 mm into
-    them before MuJoCo's soft contact pushed back, and wedged in the bar with 100-500 N (9 of 23 twin parts
-    passed); at this speed it sinks under a millimetre."""
+    Closed in the usual half second, Spot's hinged jaw met the twins' 8 mm bars at 0.3 m/s, sank up to 13 mm
+    into them before MuJoCo's soft contact pushed back, and wedged in the bar with 100-500 N (9 of 23 twin parts
+    passed); at 4 or 6 cm/s it sinks at most 1.3-2.1 mm (of the 4 mm to the bar's middle) and the same 18
+    pass. Stretch 3's light_dim_pri_drawer_00, whose drawer coasts after the release, ends within the 2 cm
+    target at 6 and 10 cm/s and 2-3 mm beyond it at 3 and 4 cm/s and without the slow phase: a marginal part."""
     grip_margin: float = 0.015
     """Each finger opens this much wider than half the handle's thickness before closing on it, m."""
     grip_squeeze: float = 0.002
