@@ -38,6 +38,14 @@ class GraspConfig:
     (a twin): the thickest bar or knob expected; the fingers then close until they stop on it, m."""
     pad_margin: float = 0.003
     """The contact point stays this far inside the finger pads' depth range, m."""
+    touch_speed: float = 0.06
+    """Speed at which the gap between the jaws closes over the widths a handle of unknown thickness may have
+    (``unknown_handle_width`` down to closed), m/s: a guarded close that meets the handle slowly wherever it is.
+    Closed in the usual half second, Spot's hinged jaw met the twins' 8 mm bars at 0.3 m/s, sank up to 13 mm
+    into them before MuJoCo's soft contact pushed back, and wedged in the bar with 100-500 N (9 of 23 twin parts
+    passed); at 4 or 6 cm/s it sinks at most 1.3-2.1 mm (of the 4 mm to the bar's middle) and the same 18
+    pass. Stretch 3's light_dim_pri_drawer_00, whose drawer coasts after the release, ends within the 2 cm
+    target at 6 and 10 cm/s and 2-3 mm beyond it at 3 and 4 cm/s and without the slow phase: a marginal part."""
     grip_margin: float = 0.015
     """Each finger opens this much wider than half the handle's thickness before closing on it, m."""
     grip_squeeze: float = 0.002
@@ -134,6 +142,18 @@ def opening_commands(
     opening = float(np.clip(gripper.command(handle_across(task, tilt) / 2 + config.grip_margin), low, high))
     holding = float(np.clip(gripper.command(task.handle_width / 2 - config.grip_squeeze), low, high))
     return opening, holding
+
+
+def guarded_close(robot: RobotDescription, task: ArticulationTask, config: GraspConfig) -> tuple[float, float] | None:
+    """Where a close onto a handle of unknown thickness slows down, and how fast it then goes on to closed:
+    (command of jaws ``unknown_handle_width`` apart, command units per second for ``touch_speed``); None when the
+    task knows the thickness (the jaws close to it and meet it at rest)."""
+    if task.handle_width is not None:
+        return None
+    gripper = robot.gripper
+    low, high = sorted((gripper.closed, gripper.open))
+    start = float(np.clip(gripper.command(config.unknown_handle_width / 2), low, high))
+    return start, abs(gripper.command(config.touch_speed / 2) - gripper.closed)
 
 
 def release_command(robot: RobotDescription, holding: float, config: GraspConfig) -> float:
@@ -287,7 +307,13 @@ def jaw_offset(task: ArticulationTask, geometry: RobotGeometry, config: GraspCon
     if geometry.fixed_jaw is None:
         return 0.0
     face, side = geometry.fixed_jaw
-    width = task.handle_width if task.handle_width is not None else config.unknown_handle_width
+    width = task.handle_width
+    if width is None:
+        # A twin's bar is placed off the jaw by the thickness its mesh shows at most: placed as for the thickest
+        # handle expected, Spot's fixed jaw stood 13-17 mm off the twins' 8-15 mm bars; the closing jaw then
+        # pushed the hand (or the part) that far, left the bar at its fingertips, and the hand retreating from
+        # the released bar hooked it with the jaws' teeth (the door dragged 0.16 rad past its target).
+        width = config.unknown_handle_width if task.handle_width_max is None else min(task.handle_width_max, config.unknown_handle_width)
     clearance = config.fixed_jaw_clearance if task.handle_axis_world is not None else config.fixed_jaw_knob_clearance
     centre = face - side * (width / 2.0 + clearance)
     return centre if side * centre < 0.0 else 0.0
@@ -381,6 +407,7 @@ __all__ = [
     "finger_half_opening",
     "grasp_candidates",
     "grasp_depth",
+    "guarded_close",
     "surface_offset",
     "graspable_tilts",
     "handle_across",

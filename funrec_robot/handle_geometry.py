@@ -106,6 +106,10 @@ class HandleShape:
     """(3,) the contact moved across the handle axis to the median of the handle's points across it (a bar's
     middle, ``BAR_MAX_WIDTH_M``; not for less than ``BAR_SHIFT_MIN_M``), along the axis and in depth where it
     was; None if not told or not one bar."""
+    thickness_max: float | None = None
+    """Extent of a bar's points across it (across the approach and the handle axis), m: at most as thick as
+    that, the fused surface lying a little outside the true one (on the 16 bench twins' bars 1.4-11.7 mm thicker
+    than the true 8-15 mm bars); None if not told or not one bar."""
 
     @property
     def is_knob(self) -> bool:
@@ -139,11 +143,12 @@ def measure_handle(
     centre = p_part[handle].mean(axis=0)
     centre -= approach * float((centre - p_contact) @ approach)
     low, high = np.percentile(across[handle], [5.0, 95.0])
-    p_bar = None
+    p_bar, thickness = None, None
     shift = float(np.median(across[handle]))
     if high - low <= BAR_MAX_WIDTH_M:
         p_bar = p_contact + np.cross(approach, handle_axis) * (shift if abs(shift) > BAR_SHIFT_MIN_M else 0.0)
-    return HandleShape(standoff, float(np.ptp(along[handle])), centre, p_bar)
+        thickness = float(np.ptp(across[handle]))
+    return HandleShape(standoff, float(np.ptp(along[handle])), centre, p_bar, thickness)
 
 
 __all__ = ["BAR_MAX_WIDTH_M", "BAR_SHIFT_MIN_M", "BIN_M", "FRONT_SHARE", "KNOB_MAX_LENGTH_M", "MIN_HANDLE_POINTS", "PROUD_M", "HandleShape", "front_standoff", "measure_handle"]

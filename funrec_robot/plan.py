@@ -31,7 +31,7 @@ from funrec_robot.feasibility import (
     resting_state,
 )
 from funrec_robot.ghosts import part_ghosts, range_states, without_geoms
-from funrec_robot.grasp import grasp_candidates, graspable_tilts, release_command, ungraspable_reason
+from funrec_robot.grasp import grasp_candidates, graspable_tilts, guarded_close, release_command, ungraspable_reason
 from funrec_robot.grasp_frames import T_world_grasp_canonical, grasp_free_axis
 from funrec_robot.plan_config import PlanConfig
 from funrec_robot.plan_file import Plan, Segment, sha256_file
@@ -187,16 +187,23 @@ def _hold(q: FloatArray, seconds: float, dt: float) -> Trajectory:
 
 
 def _gripper_move(
-    q: FloatArray, start: float, end: float, config: PlanConfig, hold_before: float = 0.0, duration: float | None = None
+    q: FloatArray, start: float, end: float, config: PlanConfig, hold_before: float = 0.0, duration: float | None = None,
+    touch: tuple[float, float] | None = None,
 ) -> tuple[Trajectory, FloatArray]:
     """The robot holding still while the gripper command waits ``hold_before``, goes from start to end
-    (ruckig, 1 DoF) in about ``duration`` (default ``config.gripper_time``), then settles."""
-    span = abs(end - start)
+    (ruckig, 1 DoF) in about ``duration`` (default ``config.gripper_time``), then settles. A guarded close,
+    ``touch`` = (command, speed in command units per second): the ruckig move stops at that command and the
+    command then goes on to ``end`` at that constant speed."""
+    first = end if touch is None else touch[0]
+    span = abs(first - start)
     v = max(span, 1e-6) / (0.6 * (config.gripper_time if duration is None else duration))
-    command = point_to_point([start], [end], [v], [4.0 * v], config.retime)
+    values = point_to_point([start], [first], [v], [4.0 * v], config.retime).q[:, 0]
+    if touch is not None:
+        steps = max(1, int(np.ceil(abs(end - first) / (touch[1] * config.retime.dt))))
+        values = np.concatenate([values, np.linspace(first, end, steps + 1)[1:]])
     settle = int(round(config.grasp_settle_time / config.retime.dt))
     wait = int(round(hold_before / config.retime.dt))
-    values = np.concatenate([np.full(wait, start), command.q[:, 0], np.full(settle, end)])
+    values = np.concatenate([np.full(wait, start), values, np.full(settle, end)])
     return _hold(q, (len(values) - 1) * config.retime.dt, config.retime.dt), values
 
 
@@ -482,7 +489,7 @@ def _timed(
         # The released part rests on the open fingers until they have slid out from under it.
         retreat = _slowed(retreat, 1.0 / config.falling_retreat_scale, rc.dt)
     end_state = target_state if handle.final_state is None else handle.final_state
-    close_hold, close_cmd = _gripper_move(q_path[0], opening, holding, config)
+    close_hold, close_cmd = _gripper_move(q_path[0], opening, holding, config, touch=guarded_close(robot, task, config.grasp))
     released = solution.get("released", release_command(robot, holding, config.grasp))
     open_hold, open_cmd = _gripper_move(q_path[-1], holding, released, config, config.release_hold_time,
                                         robot.gripper.release_time)

@@ -72,6 +72,10 @@ class ArticulationTask:
     unknown. The planner keeps the fingertips clear of that surface."""
     handle_width: float | None = None
     """Thickness of the handle between the finger pads, m; None if unknown (the gripper then opens fully)."""
+    handle_width_max: float | None = None
+    """At most this thick between the finger pads, m, when ``handle_width`` is unknown: measured on a twin's part
+    mesh (``handle_geometry.HandleShape.thickness_max``); None if not told. A fixed jaw is placed off a handle
+    that thick (``grasp.jaw_offset``) rather than off the thickest one expected."""
     handle_depth: float | None = None
     """Extent of the handle along the approach, m (it crosses the pads when the grasp is tilted); None if
     unknown (taken equal to the width)."""

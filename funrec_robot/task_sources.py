@@ -334,12 +334,12 @@ def task_from_twin(
         why += "; the grasp is on a handle the part mesh shows" if on_handle else "; the grasp is a guess on the part's front"
     # The handle's standoff from the part's front and its shape, measured on the part mesh around a contact
     # the hand made (not around one guessed on the front itself: the planner then assumes a standoff).
-    standoff = None
+    standoff, thickness_max = None, None
     if affordance is not None or on_handle:
         shape = measure_handle(_part_points(root, joint), p_contact, approach, handle_axis)
-        standoff = shape.standoff
+        standoff, thickness_max = shape.standoff, shape.thickness_max
         if shape.is_knob and shape.p_centre is not None:
-            p_contact, handle_axis = shape.p_centre, None
+            p_contact, handle_axis, thickness_max = shape.p_centre, None, None
         elif shape.p_bar is not None and np.any(shape.p_bar != p_contact):
             log.info("part '%s': grasp centred across its bar, %.1f mm from the affordance's contact point",
                      joint.name, 1e3 * float(np.linalg.norm(shape.p_bar - p_contact)))
@@ -356,6 +356,7 @@ def task_from_twin(
         approach_world=_transform_vector(T, approach),
         handle_axis_world=None if handle_axis is None else _transform_vector(T, handle_axis),
         surface_offset=standoff,
+        handle_width_max=thickness_max,
         demo_times=demo_times,
         demo_states=demo_states,
         source=source,
