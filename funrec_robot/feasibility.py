@@ -90,22 +90,55 @@ def gravity_overload(
     states: FloatArray,
     fingers: float,
     share: float,
+    joint: int | None = None,
 ) -> tuple[str, float, float] | None:
-    """The first planning joint that must hold more than ``share`` of its effort limit against gravity at one
-    of the (K, nq) configurations, as (joint, load, limit) in N or N m; None if none does."""
+    """The first planning joint that must hold more than ``share`` of its effort limit at one of the (K, nq)
+    configurations, as (joint, load, limit) in N or N m; None if none does. The load is gravity on the robot
+    and, with a scene ``joint``, the part's weight on the hand (:func:`handle_load`): a drop-down door hangs on
+    the hand it is held by (TIAGo's arm_5_joint, 3.0 N m, held plain_rev_dishwasher_00's door at 3.2 N m with
+    11-22 N on the handle; a check of the arm's weight alone passed it)."""
     indices = ik.indices
     data = mujoco.MjData(model)
     allowed = share * robot.effort_max
     for qk, state in zip(q, states):
-        bias = gravity_load(model, data, ik.full_q(qk, float(state), fingers))
-        load = np.abs(bias[indices.dof])
+        qpos = ik.full_q(qk, float(state), fingers)
+        bias = gravity_load(model, data, qpos)[indices.dof].copy()
         if robot.gravity_compensation:
-            load = np.abs(bias[indices.dof] * model.body_gravcomp[model.dof_bodyid[indices.dof]])
+            bias = bias * model.body_gravcomp[model.dof_bodyid[indices.dof]]
+        load = np.abs(bias)
+        if joint is not None:
+            load = np.abs(bias + handle_load(model, data, joint, qpos, int(indices.grasp_site))[indices.dof])
         over = np.flatnonzero(load > allowed)
         if len(over):
             j = int(over[0])
             return robot.joint_names[j], float(load[j]), float(robot.effort_max[j])
     return None
+
+
+def handle_load(model: mujoco.MjModel, data: mujoco.MjData, joint: int, qpos: FloatArray, site: int) -> FloatArray:
+    """(nv,) generalised force the robot spends holding a scene joint's part still by its grasp ``site`` at
+    ``qpos``, N or N m: ``J_site^T f``, with f the least force at the site that holds the part against its
+    gravity and spring (``joint_loads``), along the direction the site moves with the part. Overwrites ``data``."""
+    data.qpos[:] = qpos
+    mujoco.mj_kinematics(model, data)
+    mujoco.mj_comPos(model, data)
+    p_site = data.site_xpos[site].copy()
+    axis = data.xaxis[joint].copy()
+    if model.jnt_type[joint] == mujoco.mjtJoint.mjJNT_HINGE:
+        v = np.cross(axis, p_site - data.xanchor[joint])
+    else:
+        v = axis
+    speed2 = float(v @ v)
+    if speed2 < 1e-8:
+        return np.zeros(model.nv)
+    load = joint_loads(model, joint, np.array([data.qpos[model.jnt_qposadr[joint]]]), qpos)[0]
+    force = load * v / speed2  # f . v = load, the least such f
+    jacp = np.zeros((3, model.nv))
+    data.qpos[:] = qpos
+    mujoco.mj_kinematics(model, data)
+    mujoco.mj_comPos(model, data)
+    mujoco.mj_jacSite(model, data, jacp, None, site)
+    return jacp.T @ force
 
 
 def _geom_mask(model: mujoco.MjModel, *geoms: Iterable[int]) -> BoolArray:
@@ -296,13 +329,14 @@ def resting_state(model: mujoco.MjModel, joint: int, state: float, duration: flo
     return float(data.qpos[qadr])
 
 
-def joint_loads(model: mujoco.MjModel, joint: int, states: FloatArray) -> FloatArray:
+def joint_loads(model: mujoco.MjModel, joint: int, states: FloatArray, qpos: FloatArray | None = None) -> FloatArray:
     """(N,) generalised force that holding a scene joint's part still at each state takes against gravity and
-    the joint's spring (minus what they exert on it; the rest of the scene at its reference), N m or N."""
+    the joint's spring (minus what they exert on it; the rest of the model at ``qpos``, default its reference),
+    N m or N."""
     dof = int(model.jnt_dofadr[joint])
     data = mujoco.MjData(model)
     out = []
-    qpos = model.qpos0.copy()
+    qpos = (model.qpos0 if qpos is None else np.asarray(qpos, dtype=np.float64)).copy()
     for state in states:
         qpos[model.jnt_qposadr[joint]] = state
         bias = gravity_load(model, data, qpos)
@@ -336,6 +370,7 @@ __all__ = [
     "first_blocked_state",
     "first_collision",
     "gravity_overload",
+    "handle_load",
     "joint_loads",
     "kinematic_collisions",
     "release_sweep_depth",

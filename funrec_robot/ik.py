@@ -229,6 +229,7 @@ class WholeBodyIK:
         self.model = model
         self.config = config
         self.indices = robot_indices(robot, model)
+        self.part_joint = int(part_joint)
         self.part_qpos = int(model.jnt_qposadr[part_joint])
         self.configuration = mink.Configuration(model)
         self.n_base = len(robot.base_joints)

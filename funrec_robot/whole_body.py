@@ -196,11 +196,13 @@ def _from_pregrasp(
     q_path = np.vstack([q_grasp, tracked.q])
     states, path, q_path = _refine_path(ik, task, states, path, q_path, grasp, flip, holding, config)
     overload = gravity_overload(
-        robot, model, ik, np.vstack([q_grasp, q_path]), np.r_[start_state, states], holding, config.gravity_effort_share
+        robot, model, ik, np.vstack([q_grasp, q_path]), np.r_[start_state, states], holding, config.gravity_effort_share,
+        ik.part_joint,
     )
     if overload is not None:
         raise GravityOverload(
-            f"part '{task.part}': at the planned grasp {overload[0]} must hold {overload[1]:.1f} against gravity, "
+            f"part '{task.part}': at the planned grasp {overload[0]} must hold {overload[1]:.1f} against gravity "
+            "(the robot's and the part's on the hand), "
             f"more than {config.gravity_effort_share:.0%} of its effort limit {overload[2]:.1f}"
         )
     # The retreat only has to take the fingers off the handle: the IK's best effort is kept when it leaves

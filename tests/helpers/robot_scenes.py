@@ -15,8 +15,8 @@ import numpy as np
 from funrec.formats.camera_poses import write_camera_poses
 from funrec.formats.ground_truth import GroundTruthPart, write_ground_truth_json
 from funrec.formats.twin import make_part
-from funrec.synth import bench_suite
 from funrec.synth.sequence import plan_sequence
+from funrec.synth.suite import families_suite
 
 REVOLUTE_CASE = "rev_cabinet_left_00"
 """A cabinet door with a vertical bar handle, hinge on the left."""
@@ -25,8 +25,8 @@ PRISMATIC_CASE = "pri_drawer_00"
 
 
 def write_gt_scene(name: str, out_dir: Path) -> Path:
-    """Write the gt/ folder of bench sequence ``name`` under ``out_dir/name`` and return it."""
-    spec = {s.name: s for s in bench_suite()}[name]
+    """Write the gt/ folder of bench sequence ``name`` (of any family) under ``out_dir/name`` and return it."""
+    spec = {s.name: s for s in families_suite()}[name]
     plan = plan_sequence(spec, texture_px=32)
     gt = Path(out_dir) / name / "gt"
     for path, data in plan.assets.items():
