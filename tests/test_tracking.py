@@ -65,6 +65,38 @@ def test_static_scene_tracks_to_millimetres(scenes):
     assert rmse < 0.01 and rot_deg < 0.5, (rmse, rot_deg)
 
 
+def test_corners_lost_right_after_seeding_do_not_make_every_frame_a_keyframe(scenes, monkeypatch):
+    """On plain paint most corners a keyframe seeds sit on sensor noise and are lost in the next
+    frame. Simulated here: 70 % of every fresh seeding is lost at once. Counted from the seeds, the
+    survivors (30 %) are already below the 40 % keyframe fraction, so every frame became a keyframe
+    and the pose was chained frame to frame (plain_pri_wardrobe_00: 2 cm of drift over four
+    frames); counted from the corners tracked into the next frame, keyframes come as the view moves
+    on. The camera still tracks to the static test's centimetre."""
+    scene, root = scenes["plain"]
+    original = tracking.track_klt
+
+    def lossy_klt(previous, current, uv, *args):
+        tracked, ok = original(previous, current, uv, *args)
+        if len(uv) > lossy_klt.last:  # corners were seeded since the last call (a keyframe)
+            ok = ok & (np.arange(len(uv)) % 10 < 3)
+        lossy_klt.last = int(ok.sum())
+        return tracked, ok
+
+    counts = {}
+    for after_first_frame in (False, True):
+        lossy_klt.last = 0
+        monkeypatch.setattr(tracking, "track_klt", lossy_klt)
+        # 300 corners are seeded at this 320x240 size (500 at 640x480): the keyframe inlier floor is
+        # scaled with them, so that the 90 survivors are above it and below 40 % of the seeds
+        config = TrackingConfig(keyframe_size_after_first_frame=after_first_frame, keyframe_min_inliers=60)
+        trajectory = track_camera(load_capture(root), config)
+        counts[after_first_frame] = len(trajectory.keyframes)
+    assert counts[False] > 0.8 * FRAMES  # nearly every frame, as on the plain bench sequences
+    assert counts[True] < 0.5 * counts[False], counts
+    rmse, rot_deg = ate_m(trajectory.T_world_camera, scene.T_world_camera)
+    assert rmse < 0.01 and rot_deg < 0.5, (rmse, rot_deg)
+
+
 def test_hand_covering_a_quarter_of_the_view_does_not_drag_the_camera(scenes):
     """The hand (~25 % of the image) and the opening door move independently; without
     masks RANSAC must still pick the static majority, and with masks it must do no worse."""
