@@ -496,6 +496,41 @@ def test_front_plane_is_not_moved_onto_a_bar() -> None:
     assert abs(origin @ normal) < 0.003  # within the RANSAC tolerance (5 mm) of the front at z = 0
 
 
+def _half_tube(length: float, radius: float, spacing: float = 0.003) -> np.ndarray:
+    """(N, 3) upper half (the side facing +z) of a bar along x with its axis on the x axis."""
+    x, angle = np.meshgrid(np.arange(-length / 2, length / 2, spacing), np.linspace(0.0, np.pi, 21))
+    return np.stack([x.ravel(), radius * np.cos(angle.ravel()), radius * np.sin(angle.ravel())], axis=1)
+
+
+@pytest.mark.parametrize(
+    ("joint_type", "axis", "wall_y"),
+    [
+        ("prismatic", [0.0, -1.0, 0.0], 0.16),  # the wall 17 cm from the hand (over max_hand_distance_m)
+        ("revolute", [0.0, 0.0, 1.0], 0.07),  # 10 cm from it, but the horizontal plane holds no vertical hinge
+    ],
+)
+def test_a_bar_seen_from_above_is_the_handle_not_what_stands_above_its_top(joint_type: str, axis: list[float], wall_y: float) -> None:
+    """A 2 cm bar seen from above with a hand on it and no front in view (mw_drawer_00, mw_door_00):
+    the horizontal plane of the bar's top and the rim behind it is no front, and the wall behind the
+    bar that stands out of it is no handle (mw_drawer_00: 18.8 cm off, mw_door_00: 8.5 cm before).
+    The contact is on the bar's axis level with the estimate, approached from the hand's side."""
+    rim = _grid((-0.15, 0.15), (0.04, wall_y), 0.02)
+    wall = _grid((-0.15, 0.15), (-0.1, 0.07), wall_y)[:, [0, 2, 1]]  # the plane y = wall_y
+    p = np.concatenate([_half_tube(0.3, 0.02), rim, wall])
+    c_first = np.array([0.02, -0.004, 0.019])  # on the bar's top, 2 cm along it from its centre
+    p_hand = c_first + [0.0, -0.02, 0.05]  # the back of the hand, above the bar
+    pivot = None if joint_type == "prismatic" else [-0.5, 0.0, 0.0]
+    part = make_part("part_0", joint_type, axis, pivot, np.arange(2), np.array([0.0, 0.2]))
+    contact, T_world_grasp, found = grasp_at_handle(part, p, c_first, p_hand, np.array([0.0, 0.0, 1.0]), AffordanceConfig(), np.random.default_rng(0))
+    assert found
+    # 5 mm: the bar's axis at the estimate's place along it is (0.02, 0, 0); the fit sees half the
+    # bar's surface (3 mm spacing) and the rim's edge, which leaves within the plane tolerance
+    # (5 mm) of the circle; the wall (the failure) is 8-17 cm away.
+    np.testing.assert_allclose(contact, [0.02, 0.0, 0.0], atol=0.005)
+    assert abs(T_world_grasp[:3, 0] @ [1.0, 0.0, 0.0]) > 0.99  # x along the bar
+    assert T_world_grasp[:3, 2] @ (p_hand - contact) < 0.0  # approach from the hand's side
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["rev_cabinet_left_00", "pri_drawer_01", "multi_kitchen_01"])
 def test_bench_contact_points_with_ground_truth_inputs(name: str, tmp_path: Path) -> None:

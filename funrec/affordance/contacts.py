@@ -79,7 +79,10 @@ def find_affordances(
        out of the front plane (the front-most wide layer parallel to the dominant plane; a part
        fused with a few wrong states holds a copy of its front behind it) within
        ``handle_search_radius_m``, nearest to the estimate by squared distance per point (bar,
-       knob, grip lip).
+       knob, grip lip). A snapped contact far from the hand (``max_hand_distance_m``), or a
+       revolute part's front not containing its hinge (``max_front_hinge_cos``), means the plane
+       was the top of the held bar seen from above: the contact is then the axis of the bar under
+       the hand (a circle fitted across it, ``bar_fit_radius_m``).
     5. Grasp frame, demonstrated trajectory (states during each hold) and contact path (the
        contact point moved over the joint range), see the module docstring for conventions.
 

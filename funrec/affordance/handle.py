@@ -1,5 +1,6 @@
 """Handle snapping: the front plane of a part around a first contact estimate, the protruding
-handle geometry nearest to it, and the grasp frame on that handle.
+handle geometry nearest to it (or the bar under the hand when that does not fit the hold), and
+the grasp frame on that handle.
 """
 
 from __future__ import annotations
@@ -13,6 +14,11 @@ from funrec.affordance.types import AffordanceConfig
 from funrec.formats.twin import ArticulatedPart
 from funrec.geometry.transforms import make_transform
 from funrec.typed import BoolArray, FloatArray
+
+_CIRCLE_REFITS = 2
+"""Refits of a held bar's cross-section circle on the points close to it: the first moves the
+synthetic test bar's axis 1 cm (off the rim), later ones move the three mw_* contacts under 0.3 mm
+(measured)."""
 
 _EXTENT_PERCENTILES = (1.0, 99.0)
 """Percentiles of the handle points along the handle that give its extent (ends robust to a few
@@ -36,6 +42,9 @@ def grasp_at_handle(
     ``handle_search_radius_m`` standing out of it towards the hand are handle geometry, and the
     linked piece of it nearest to the estimate (per point) is the handle: its centre (or, on a long handle,
     the centre of its part near the estimate) is the contact point, its direction the x axis.
+    When that contact does not fit the hold (:func:`_fits_the_hold`), the plane was the top of the
+    held bar seen from above: the contact is the bar's axis level with the estimate
+    (:func:`_bar_under_hand`), approached from the hand's side.
     """
     towards_hand = p_hand - c_first if np.linalg.norm(p_hand - c_first) > 1e-9 else up
     front, origin, normal, inliers = front_plane(p_local, c_first, towards_hand, config, rng)
@@ -66,6 +75,13 @@ def grasp_at_handle(
             contact = centre + np.clip((p_hand - centre) @ direction, lo, hi) * direction
     z = -normal
     x = _handle_axis(part, handle if handle_found else np.zeros((0, 3)), plane_points, z, config)
+    if not _fits_the_hold(part, contact, normal, p_hand, config):
+        bar = _bar_under_hand(p_local, c_first, config)
+        if bar is not None:
+            point, direction = bar
+            approach = (point - p_hand) - ((point - p_hand) @ direction) * direction
+            if np.linalg.norm(approach) > 1e-9:  # from the hand's side towards the bar's axis
+                contact, x, z, handle_found = point, direction, approach / np.linalg.norm(approach), True
     y = np.cross(z, x)
     # Sign: of x and y, whichever is closer to the camera's up direction points up.
     if abs(y @ up) >= abs(x @ up):
@@ -74,6 +90,53 @@ def grasp_at_handle(
     elif x @ up < 0:
         x, y = -x, -y
     return contact, make_transform(np.stack([x, y, z], axis=1), contact), handle_found
+
+
+def _fits_the_hold(part: ArticulatedPart, contact: FloatArray, normal: FloatArray, p_hand: FloatArray, config: AffordanceConfig) -> bool:
+    """Whether a contact (3,) snapped with the front plane's unit ``normal`` (3,) agrees with the hold:
+    the hand's far end ``p_hand`` (3,) is within ``max_hand_distance_m`` of it (the hand wraps the
+    handle), and a revolute part's front contains its hinge (``max_front_hinge_cos``)."""
+    if np.linalg.norm(contact - p_hand) > config.max_hand_distance_m:
+        return False
+    return part.joint_type != "revolute" or abs(normal @ part.axis_world) <= config.max_front_hinge_cos
+
+
+def _bar_under_hand(p: FloatArray, c: FloatArray, config: AffordanceConfig) -> tuple[FloatArray, FloatArray] | None:
+    """The bar the hand held when no front explains the hold: the point (3,) of its axis level
+    with ``c`` and its unit direction (3,), from the (N, 3) points within ``bar_fit_radius_m`` of
+    ``c`` (their principal direction, and a least-squares circle through them across it); None when
+    they are too few or their circle is wider than a handle (``handle_max_height_m``).
+
+    A bar seen from above (mw_drawer_00: the camera 0.9 m above a drawer's bar) shows its top, level
+    with the part's rim: the largest plane around the estimate is that top, and what stands out of
+    it is not the handle."""
+    near = p[np.linalg.norm(p - c, axis=1) < config.bar_fit_radius_m]
+    if len(near) < config.min_handle_points:
+        return None
+    centre = near.mean(axis=0)
+    vectors = np.linalg.eigh((near - centre).T @ (near - centre))[1]
+    direction, across = vectors[:, 2], vectors[:, :2]
+    uv = (near - centre) @ across
+    m, radius = _circle(uv)
+    # Refitted on the points within the plane tolerance of the circle: the rim next to a drawer's
+    # bar is in the fit radius too (it pulled the synthetic bar's axis 1 cm towards itself).
+    for _ in range(_CIRCLE_REFITS):
+        on_circle = np.abs(np.linalg.norm(uv - m, axis=1) - radius) < config.plane_tolerance_m
+        if np.count_nonzero(on_circle) < config.min_handle_points:
+            break
+        m, radius = _circle(uv[on_circle])
+    if not 0.0 < radius <= config.handle_max_height_m:
+        return None
+    axis_point = centre + across @ m
+    return axis_point + ((c - axis_point) @ direction) * direction, direction
+
+
+def _circle(uv: FloatArray) -> tuple[FloatArray, float]:
+    """Least-squares circle through (N, 2) points (Kasa: |uv - m|^2 = r^2 is linear in m and
+    r^2 - |m|^2): its centre (2,) and radius (0 when the fit is degenerate)."""
+    solution = np.linalg.lstsq(np.c_[2.0 * uv, np.ones(len(uv))], (uv**2).sum(axis=1), rcond=None)[0]
+    m = solution[:2]
+    return m, float(np.sqrt(max(solution[2] + m @ m, 0.0)))
 
 
 def front_plane(

@@ -97,6 +97,21 @@ class AffordanceConfig:
     knobs 3 cm, recessed grips' lips 1-2 cm; 8 mm is above the fit noise)."""
     handle_max_height_m: float = 0.08
     """... and no farther (anything farther is not a handle)."""
+    max_hand_distance_m: float = 0.12
+    """A contact snapped to handle geometry farther than this from the hand's far end (the centroid
+    of its points during the holds) is not where the hand was: the hand wraps the handle, its far
+    end (the back of the hand) lies 3.4-8.4 cm from the right contact on the 32 bench parts whose
+    contact is right; 22-23 cm on mw_drawer_00 and mw_window_00, where the front plane was the top
+    of a bar seen from above and a wall behind it stood out of it. Such a hold is fitted as a bar
+    (``bar_fit_radius_m``)."""
+    max_front_hinge_cos: float = 0.5
+    """... nor is one whose front plane's normal makes a cosine above this with a revolute part's
+    hinge axis (a door's front contains its hinge): 0.00-0.02 on the 20 bench doors, 0.99 on
+    mw_door_00 (the top of its bar, seen from above, taken for the front)."""
+    bar_fit_radius_m: float = 0.06
+    """Radius around the first estimate whose points give the held bar's axis (a circle fitted
+    across their principal direction) when the front does not fit the hold: holds mw_door_00's
+    bar (5 cm radius) across; 4 cm took its end cap for the axis (measured)."""
     handle_link_m: float = 0.012
     """Handle points closer than this are linked into one piece (2-3 surface spacings)."""
     min_handle_points: int = 5
@@ -132,7 +147,8 @@ class AffordanceConfig:
 
     def __post_init__(self) -> None:
         positive = (self.surface_spacing_m, self.distal_band_m, self.contact_distance_m, self.hold_radius_m,
-                    self.search_radius_m, self.front_cell_m, self.plane_tolerance_m, self.handle_link_m)
+                    self.search_radius_m, self.front_cell_m, self.plane_tolerance_m, self.handle_link_m,
+                    self.max_hand_distance_m, self.bar_fit_radius_m)
         if min(positive) <= 0 or not 0.0 < self.distal_quantile <= 1.0 or self.hand_stride_px < 1:
             raise ValueError(f"AffordanceConfig needs positive lengths, 0 < distal_quantile <= 1 and hand_stride_px >= 1, got {self}")
         if not 0.0 < self.vote_top_fraction <= 1.0 or not 0.0 < self.region_fraction <= 1.0 or self.path_samples < 2:
