@@ -207,24 +207,6 @@ def _gripper_move(
     return _hold(q, (len(values) - 1) * config.retime.dt, config.retime.dt), values
 
 
-def _let_go_command(robot: RobotDescription, holding: float, released: float, config: PlanConfig) -> float:
-    """The gripper command the fingers open to at rest on the handle: ``PlanConfig.let_go_gap`` looser than
-    holding, or ``released`` if that is less open; the rest of the way only while the hand backs off
-    (:func:`_opening_while_leaving`)."""
-    gripper = robot.gripper
-    low, high = sorted((gripper.closed, gripper.open))
-    looser = gripper.command(config.grasp.grip_squeeze + config.let_go_gap) - gripper.closed
-    at_rest = float(np.clip(holding + looser, low, high))
-    return at_rest if abs(at_rest - holding) < abs(released - holding) else released
-
-
-def _opening_while_leaving(retreat: Trajectory, let_go: float, released: float, config: PlanConfig) -> FloatArray:
-    """(K,) gripper commands along the retreat: from ``let_go`` to ``released`` over its first
-    ``config.gripper_time`` (or all of it, if shorter), the fingers opening as the hand backs off the handle."""
-    span = max(min(config.gripper_time, float(retreat.t[-1])), config.retime.dt)
-    return np.interp(retreat.t, [0.0, span], [let_go, released])
-
-
 @dataclass(frozen=True)
 class _HandlePath:
     """The states the handle is to be carried through, after the target was resolved and capped."""
@@ -509,8 +491,7 @@ def _timed(
     end_state = target_state if handle.final_state is None else handle.final_state
     close_hold, close_cmd = _gripper_move(q_path[0], opening, holding, config, touch=guarded_close(robot, task, config.grasp))
     released = solution.get("released", release_command(robot, holding, config.grasp))
-    let_go = _let_go_command(robot, holding, released, config)
-    open_hold, open_cmd = _gripper_move(q_path[-1], holding, let_go, config, config.release_hold_time,
+    open_hold, open_cmd = _gripper_move(q_path[-1], holding, released, config, config.release_hold_time,
                                         robot.gripper.release_time)
 
     def constant(traj: Trajectory, value: float) -> FloatArray:
@@ -521,7 +502,7 @@ def _timed(
         ("grasp", close_hold, close_cmd, constant(close_hold, start_state)),
         ("actuate", Trajectory(actuate.t, actuate.q[:, :-1], actuate.qd[:, :-1]), constant(actuate, holding), actuate.q[:, -1]),
         ("release", open_hold, open_cmd, constant(open_hold, target_state)),
-        ("retreat", retreat, _opening_while_leaving(retreat, let_go, released, config), constant(retreat, end_state)),
+        ("retreat", retreat, constant(retreat, released), constant(retreat, end_state)),
     ]
     t, q, qd, gripper, part_state, raw_segments = _concatenate(pieces, rc.dt)
     return t, q, qd, gripper, part_state, _merge_segments(raw_segments, t)

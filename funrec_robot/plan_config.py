@@ -81,14 +81,6 @@ class PlanConfig:
     leading stage by up to 3 cm while pulling and swings back after the stop: at 0.8 s the drawer of
     person_partial_pri_drawer_00 (twin plan, true scene) was let go at 8 mm/s and ended 2.55 cm short, at 1.5 s
     it rests within 4 mm of the target."""
-    let_go_gap: float = 0.002
-    """At rest on the handle the fingers open only this far clear of it, m; they open on to the release command
-    (``GraspConfig.release_gap``, a robot's ``gripper.release_gap``) over the retreat, as the hand backs off along
-    the approach. Fingers swept wider at rest pushed the part they had just let go, and a part that glides
-    (1 N s/m, no friction) keeps what it is given: Fetch's, opening 15 mm each on plain_rev_fridge_00's twin plan
-    in the true scene, met the door's front as the arm came off its hold and pressed 6-9 N on it for 0.2 s (the
-    33 kg door coasted from 1.498 to 1.408 rad, 0.110 off); Stretch 3's, opening 5 mm on dark_pri_drawer_00, met
-    the knob 0.26 s after letting go of it, 0.3 N for 0.1 s (the drawer ended 2.1 cm short)."""
     free_range_step: float = float(np.deg2rad(0.5))
     """Step of the scan for where a revolute part first runs into the rest of the scene ('open' and 'close'
     stop ``end_margin`` short of it as of a joint stop), rad."""
