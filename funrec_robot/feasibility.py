@@ -102,12 +102,14 @@ def gravity_overload(
     allowed = share * robot.effort_max
     for qk, state in zip(q, states):
         qpos = ik.full_q(qk, float(state), fingers)
-        bias = gravity_load(model, data, qpos)[indices.dof].copy()
+        full = gravity_load(model, data, qpos)
+        bias = full[indices.dof].copy()
         if robot.gravity_compensation:
             bias = bias * model.body_gravcomp[model.dof_bodyid[indices.dof]]
         load = np.abs(bias)
-        if joint is not None:
-            load = np.abs(bias + handle_load(model, data, joint, qpos, int(indices.grasp_site))[indices.dof])
+        if joint is not None:  # data's kinematics and bias are at qpos: the part's load read off them
+            load = np.abs(bias + _handle_load_here(model, data, joint, int(indices.grasp_site),
+                                                   float(full[model.jnt_dofadr[joint]]))[indices.dof])
         over = np.flatnonzero(load > allowed)
         if len(over):
             j = int(over[0])
@@ -118,10 +120,15 @@ def gravity_overload(
 def handle_load(model: mujoco.MjModel, data: mujoco.MjData, joint: int, qpos: FloatArray, site: int) -> FloatArray:
     """(nv,) generalised force the robot spends holding a scene joint's part still by its grasp ``site`` at
     ``qpos``, N or N m: ``J_site^T f``, with f the least force at the site that holds the part against its
-    gravity and spring (``joint_loads``), along the direction the site moves with the part. Overwrites ``data``."""
-    data.qpos[:] = qpos
-    mujoco.mj_kinematics(model, data)
-    mujoco.mj_comPos(model, data)
+    gravity and spring (as ``joint_loads``), along the direction the site moves with the part. Overwrites ``data``."""
+    bias = gravity_load(model, data, qpos)
+    return _handle_load_here(model, data, joint, site, float(bias[model.jnt_dofadr[joint]]))
+
+
+def _handle_load_here(model: mujoco.MjModel, data: mujoco.MjData, joint: int, site: int, joint_bias: float) -> FloatArray:
+    """:func:`handle_load` with ``data``'s kinematics already at the configuration and ``joint_bias`` the gravity
+    load on the joint there (``gravity_load``'s entry at its dof): no second forward pass and no new MjData for
+    each configuration the planner checks."""
     p_site = data.site_xpos[site].copy()
     axis = data.xaxis[joint].copy()
     if model.jnt_type[joint] == mujoco.mjtJoint.mjJNT_HINGE:
@@ -131,14 +138,16 @@ def handle_load(model: mujoco.MjModel, data: mujoco.MjData, joint: int, qpos: Fl
     speed2 = float(v @ v)
     if speed2 < 1e-8:
         return np.zeros(model.nv)
-    load = joint_loads(model, joint, np.array([data.qpos[model.jnt_qposadr[joint]]]), qpos)[0]
+    load = joint_bias + _spring(model, joint, float(data.qpos[model.jnt_qposadr[joint]]))
     force = load * v / speed2  # f . v = load, the least such f
     jacp = np.zeros((3, model.nv))
-    data.qpos[:] = qpos
-    mujoco.mj_kinematics(model, data)
-    mujoco.mj_comPos(model, data)
     mujoco.mj_jacSite(model, data, jacp, None, site)
     return jacp.T @ force
+
+
+def _spring(model: mujoco.MjModel, joint: int, state: float) -> float:
+    """The scene joint's spring load at ``state``, N m or N."""
+    return model.jnt_stiffness[joint] * (state - model.qpos_spring[model.jnt_qposadr[joint]])
 
 
 def _geom_mask(model: mujoco.MjModel, *geoms: Iterable[int]) -> BoolArray:
@@ -340,8 +349,7 @@ def joint_loads(model: mujoco.MjModel, joint: int, states: FloatArray, qpos: Flo
     for state in states:
         qpos[model.jnt_qposadr[joint]] = state
         bias = gravity_load(model, data, qpos)
-        spring = model.jnt_stiffness[joint] * (state - model.qpos_spring[model.jnt_qposadr[joint]])
-        out.append(float(bias[dof] + spring))
+        out.append(float(bias[dof] + _spring(model, joint, state)))
     return np.array(out)
 
 

@@ -193,9 +193,6 @@ def _from_pregrasp(
                        give_up=(config.track_position_tolerance, config.track_orientation_tolerance))
     worst = _worst_target(tracked.position_error, tracked.orientation_error, config)
     _require(tracked.position_error[worst], tracked.orientation_error[worst], config, "handle path", states[1 + worst], task)
-    if len(tracked.q) < len(path) - 1:  # never reached (a short path has its last row missed), but never refined
-        raise PlanningError(f"whole-body IK: handle path of part '{task.part}' stops at state "
-                            f"{states[len(tracked.q)]:.3f} {task.unit} of {states[-1]:.3f}")
     q_path = np.vstack([q_grasp, tracked.q])
     states, path, q_path = _refine_path(ik, task, states, path, q_path, grasp, flip, holding, config)
     overload = gravity_overload(

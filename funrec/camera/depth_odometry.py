@@ -249,7 +249,8 @@ def depth_view(gray: UInt8Array, depth_m: FloatArray, usable: BoolArray, K: Floa
         K: (3, 3) intrinsics.
     """
     s = config.map_stride
-    depth = np.where(usable, depth_m, 0.0)[::s, ::s]
+    usable_depth = np.where(usable, depth_m, 0.0)
+    depth = usable_depth[::s, ::s]
     K_map = np.array(K, dtype=np.float64)
     K_map[:2] /= s  # map pixel (u/s, v/s) is image pixel (u, v)
     p_map = backproject(depth, K_map).reshape(*depth.shape, 3)
@@ -267,7 +268,10 @@ def depth_view(gray: UInt8Array, depth_m: FloatArray, usable: BoolArray, K: Floa
     intensity = np.full_like(grey, np.nan) if flat else cv2.GaussianBlur(grey, (5, 5), 1.0)
     # Occluding contours at full resolution: at the map's stride an outline is found only to 2
     # pixels, and a straight edge's pixels all share that rounding.
-    uv2, z = _contour(np.where(usable, depth_m, 0.0), config.max_edge_ratio)
+    if config.contour_weight > 0:
+        uv2, z = _contour(usable_depth, config.max_edge_ratio)
+    else:
+        uv2, z = np.zeros((0, 2), dtype=np.int64), np.zeros(0)
     contour_p = np.stack([(uv2[:, 0] / 2 - K[0, 2]) * z / K[0, 0], (uv2[:, 1] / 2 - K[1, 2]) * z / K[1, 1], z], axis=1)
     return DepthView(np.asarray(K, dtype=np.float64), s, p_map, n_map, float(np.median(depth[depth > 0])),
                      p_tree[keep], n_tree[keep], intensity, uv2, contour_p)
@@ -322,37 +326,34 @@ def _associate(p_source: FloatArray, target: DepthView, T: FloatArray, distance_
     return p, q, n, has
 
 
+def _projected(p: FloatArray, K: FloatArray, images: tuple[np.ndarray, ...], scale: float = 1.0
+               ) -> tuple[BoolArray, FloatArray, FloatArray]:
+    """Points (N, 3) projected with ``K`` into images of ``scale`` pixels per pixel of K (value, d/du,
+    d/dv): which land inside, the value there and its gradient d value / d p (N, 3); the grey-level
+    and the contour residuals both step through it."""
+    z = np.maximum(p[:, 2], 1e-6)
+    h, w = images[0].shape
+    u, v = scale * (K[0, 0] * p[:, 0] / z + K[0, 2]), scale * (K[1, 1] * p[:, 1] / z + K[1, 2])
+    inside = (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
+    value, gu, gv = _bilinear(images, u, v)
+    grad = scale * np.stack([gu * K[0, 0] / z, gv * K[1, 1] / z, -(gu * K[0, 0] * p[:, 0] + gv * K[1, 1] * p[:, 1]) / z**2], axis=1)
+    return inside, value, grad
+
+
 def _photometric(p: FloatArray, grey_source: FloatArray, target: DepthView) -> tuple[FloatArray, FloatArray]:
     """Grey-level residuals I_target(project(p)) - I_source and their gradients d r / d p (N, 3);
     zero for points that project outside the target image."""
-    K = target.K
-    h, w = target.intensity.shape
-    z = np.maximum(p[:, 2], 1e-6)
-    u, v = K[0, 0] * p[:, 0] / z + K[0, 2], K[1, 1] * p[:, 1] / z + K[1, 2]
-    inside = (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
-    intensity, gu, gv = _bilinear((target.intensity, *target.gradient), u, v)
+    inside, intensity, grad = _projected(p, target.K, (target.intensity, *target.gradient))
     r = intensity - grey_source
-    grad = np.stack([gu * K[0, 0] / z, gv * K[1, 1] / z, -(gu * K[0, 0] * p[:, 0] + gv * K[1, 1] * p[:, 1]) / z**2], axis=1)
     return np.where(inside, r, 0.0), np.where(inside[:, None], grad, 0.0)
 
 
 def _contour_residuals(p: FloatArray, target: DepthView) -> tuple[FloatArray, FloatArray]:
     """Distance from each point's projection to the target's nearest occluding contour, in metres
     at the point's depth, and its gradient d r / d p (N, 3); zero outside the target image."""
-    K = target.K
-    distance, du, dv = target.contour_distance
-    h, w = distance.shape
-    z = np.maximum(p[:, 2], 1e-6)
-    u = 2 * (K[0, 0] * p[:, 0] / z + K[0, 2])
-    v = 2 * (K[1, 1] * p[:, 1] / z + K[1, 2])
-    inside = (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
-    d, gu, gv = _bilinear((distance, du, dv), u, v)
-    # Half pixels to metres at the point's depth (z / 2 fx, held fixed within a step) times the
-    # projection's derivative (2 fx / z along u): the gradient in metres per metre.
-    r = d * z / (2 * K[0, 0])
-    fy_fx = K[1, 1] / K[0, 0]
-    grad = np.stack([gu, gv * fy_fx, -(gu * p[:, 0] + gv * fy_fx * p[:, 1]) / z], axis=1)
-    return np.where(inside, r, 0.0), np.where(inside[:, None], grad, 0.0)
+    inside, distance, grad = _projected(p, target.K, tuple(target.contour_distance), scale=2.0)
+    metres = np.maximum(p[:, 2], 1e-6) / (2.0 * target.K[0, 0])  # per half pixel, held fixed within a step
+    return np.where(inside, distance * metres, 0.0), np.where(inside[:, None], metres[:, None] * grad, 0.0)
 
 
 def _bilinear(images: tuple[np.ndarray, ...], u: FloatArray, v: FloatArray) -> list[np.ndarray]:
