@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -254,19 +254,22 @@ class FragmentParts:
 
 def _fragment_parts(windows: list[WindowTracks], evidence: InteractionEvidence | None, config: ReconstructConfig,
                     change: npt.NDArray[np.float64] | None = None, capture: Capture | None = None,
-                    trajectory: CameraTrajectory | None = None, hands_detected: bool = False) -> FragmentParts:
+                    trajectory: CameraTrajectory | None = None, hands_detected: bool = False,
+                    dynamic_first: Sequence[int] = ()) -> FragmentParts:
     """Stage 3 on each dynamic fragment's tracks: the best ``parts_per_fragment`` parts of each.
     Without mask ``evidence``, the parts are ranked by size x scene change while they move
     (``change``, (F,) per frame pair of the capture; :func:`_motion_scene_change`). Where the
     tracks give no part (a plain front), one is proposed from the ``capture``'s depth
-    (:func:`~funrec.parts.depth_proposal.propose_part`) and its tracks join the window's."""
+    (:func:`~funrec.parts.depth_proposal.propose_part`) and its tracks join the window's; the window's frames
+    before its dynamic fragment's first frame (``dynamic_first[k]``, capture frames) show that part at rest."""
     found, reasons, windows, from_depth = [], {}, list(windows), set()
     for k, window in enumerate(windows):
         parts = list(estimate_articulation(window.tracks, _window_evidence(evidence, window), config.articulation).parts)
         if evidence is None and change is not None:
             parts.sort(key=lambda p: -p.size_score * _motion_scene_change(p, window.first, change))
         if (not parts or _challenge(capture, config)) and capture is not None and trajectory is not None:
-            proposed = _depth_part(window, capture, trajectory, config, parts[0] if parts else None, hands_detected)
+            rest = dynamic_first[k] - window.first if k < len(dynamic_first) else 0
+            proposed = _depth_part(window, capture, trajectory, config, parts[0] if parts else None, hands_detected, rest)
             if proposed is not None:
                 if parts:
                     log.info("fragment %d: depth's %s replaces the tracks' %s", k, proposed[1].joint_type,
@@ -293,13 +296,15 @@ def _challenge(capture: Capture | None, config: ReconstructConfig) -> bool:
 
 
 def _depth_part(window: WindowTracks, capture: Capture, trajectory: CameraTrajectory, config: ReconstructConfig,
-                rival: PartEstimate | None = None, hands_detected: bool = False) -> tuple[WindowTracks, PartEstimate] | None:
+                rival: PartEstimate | None = None, hands_detected: bool = False,
+                rest_frames: int = 0) -> tuple[WindowTracks, PartEstimate] | None:
     """A part proposed from the window's depth: the window with the part's tracks appended, and
     the part fitted to them (frames and track indices local to the window). Where the ``rival``
     (the tracks' part) is a slide and depth's best hypothesis is a slide too, the rival's slide on
     depth's surface. None when depth proposes nothing, or the rival holds. With ``hands_detected``
     (the capture's hand masks came from the hands-first detection), a proposal whose own surface
-    they label hand is made again with hands detected knowing its motion."""
+    they label hand is made again with hands detected knowing its motion. The window's first ``rest_frames``
+    frames come before the scene changed (see :func:`~funrec.parts.depth_proposal.propose_part`)."""
     span, poses = sub_capture(capture, window.first, window.last), sub_trajectory(trajectory, window.first, window.last)
     if rival is not None and lock_correction(rival, poses.T_world_camera, config.camera_lock) is not None:
         # the camera followed the tracks' part: it is the static scene, and the camera is unlocked before the part
@@ -309,7 +314,7 @@ def _depth_part(window: WindowTracks, capture: Capture, trajectory: CameraTrajec
     hand = (lambda frame: span.mask("hand", frame)) if span.has_hand_masks else None
     joint = None if rival is None else (rival.joint_type, rival.axis_world, rival.pivot_world)
     seen = None if rival is None else (rival.frames[~rival.interpolated], rival.states[~rival.interpolated])
-    proposal = propose_part(span, poses, hand, config.depth_proposal, joint, seen)
+    proposal = propose_part(span, poses, hand, config.depth_proposal, joint, seen, rest_frames)
     added = proposal_tracks(proposal, span, poses) if proposal is not None and hands_detected else None
     if added is not None and _hand_labels_part(added, span, config):
         # hands detected before any part was known take a part moving towards the camera for the arm (a
@@ -324,7 +329,8 @@ def _depth_part(window: WindowTracks, capture: Capture, trajectory: CameraTrajec
         # lose a joint that explains the surface as well (dark_rev_glass_wall_00: the first proposal's hinge,
         # 0.4 deg, range 1.53 rad for 1.57, was replaced by one 41 deg off)
         again = joint if joint is not None else (first.joint_type, first.axis_world, first.pivot_world)
-        proposal = propose_part(span, poses, lambda frame: hands.mask(frame), config.depth_proposal, again, seen)
+        proposal = propose_part(span, poses, lambda frame: hands.mask(frame), config.depth_proposal, again, seen,
+                                rest_frames)
         if joint is None and proposal is not None and proposal.rival_held:
             log.info("depth proposal: the first proposal's %s holds against the one made with the hands detected again",
                      first.joint_type)
@@ -525,13 +531,14 @@ def _reconstruct(capture_dir: str | Path, out_dir: str | Path, config: Reconstru
                   progress=stage_progress(f"tracks fragment {k}"))
             for k in range(len(fragments.dynamic))
         ]
+        dynamic_first = [fragment.first for fragment in fragments.dynamic]
         outcome = timed("articulation", _fragment_parts, windows, _evidence(capture, config), config, change, capture,
-                        trajectory, capture is not observed)
+                        trajectory, capture is not observed, dynamic_first)
         unlocked = unlock_camera(trajectory, outcome.windows, outcome.found, config.camera_lock)
         if unlocked is not None:  # the camera had followed a part: poses and tracks corrected, parts found again
             trajectory, windows = unlocked
             outcome = timed("articulation", _fragment_parts, windows, _evidence(capture, config), config, change, capture,
-                            trajectory, capture is not observed)
+                            trajectory, capture is not observed, dynamic_first)
         windows = outcome.windows
         # a part proposed from depth already beat the other joint type there (with the surfaces that
         # arrived in front): the tracks-based check would overturn it on its own points alone (measured on

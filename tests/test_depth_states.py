@@ -375,6 +375,21 @@ def test_a_panel_sliding_in_its_plane_rests_until_its_tracks_saw_it_move() -> No
     assert np.abs(np.abs(on_arm.states)[26:30] - true[26:30]).max() < 0.034, np.abs(on_arm.states)[20:30].round(3)
 
 
+def test_rest_holds_until_depth_first_objects_after_the_still_frames() -> None:
+    """``rest_frames``: frames from 1 are held at the canonical state up to the first frame at or after
+    ``rest_frames`` whose canonical state costs more than ``change_cost`` above its best; earlier frames
+    that object are skipped without ending the rest, and frames that do not see the part never object."""
+    from funrec.parts.depth_states import _rest_prefix
+
+    cost = np.zeros((8, 3))
+    cost[:, 1] = [0.0, 0.01, 0.5, 0.01, 0.0, 0.3, 0.0, 0.0]  # canonical state = column 1; its cost above the best 0
+    seeing = np.array([True, True, True, True, False, True, True, True])
+    np.testing.assert_array_equal(_rest_prefix(cost, seeing, 1, 4, 0.02), [1, 3, 4])  # 2 objects early, 5 ends it
+    np.testing.assert_array_equal(_rest_prefix(cost, seeing, 1, 0, 0.02), [1])  # 2 ends it
+    seeing[5] = False
+    np.testing.assert_array_equal(_rest_prefix(cost, seeing, 1, 4, 0.02), [1, 3, 4, 5, 6, 7])
+
+
 def test_a_drawer_front_normal_is_refitted_on_the_closed_front_around_a_thin_strip() -> None:
     """What leaves of a drawer pulled towards a camera above it can be a strip a few pixels tall,
     whose plane fit tilts by degrees across it (light_dim_pri_drawer_00: 3.1 deg). Refitted on

@@ -143,8 +143,8 @@ Joint = tuple[str, FloatArray, FloatArray | None]
 
 def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask | None = None,
                  config: DepthProposalConfig = DepthProposalConfig(),  # noqa: B008 (frozen)
-                 rival: Joint | None = None, rival_states: tuple[IntArray, FloatArray] | None = None
-                 ) -> DepthProposal | None:
+                 rival: Joint | None = None, rival_states: tuple[IntArray, FloatArray] | None = None,
+                 rest_frames: int = 0) -> DepthProposal | None:
     """Propose the part that moved in a span of frames, and its joint, from depth alone.
 
     Args:
@@ -157,6 +157,9 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
         rival_states: the rival's (frames, states) where its tracks saw it (frames of this span,
             states along the rival's axis, 0 at frame 0): when the rival and the proposal are both
             slides, they hold the proposal's state search where depth does not object (see below).
+        rest_frames: the span's first frames in which the scene did not change (before the interaction's
+            dynamic fragment). The part rests at its canonical state in them, and after them until depth first
+            objects (:func:`~funrec.parts.depth_states.depth_states`).
 
     Returns:
         The proposal (``rival_held`` when the ``rival`` explains the surface at least as well), or
@@ -281,7 +284,7 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
         seen = (frames_seen[inside].astype(np.int64), states_seen[inside] * float(np.asarray(rival[1]) @ axis))
     states = depth_states(capture, trajectory, joint_type, axis, pivot, points, np.zeros(1, np.int64), np.zeros(1),
                           np.ones(1, bool), config.depth, np.broadcast_to(facing, points.shape), arrival=arrival,
-                          seen_states=seen)
+                          seen_states=seen, rest_frames=rest_frames)
     states = states - states[0]
     if states[np.argmax(np.abs(states))] < 0:
         axis, states = -axis, -states

@@ -124,6 +124,7 @@ def depth_states(
     normal_world: FloatArray | None = None,
     arrival: Arrival | None = None,
     seen_states: tuple[IntArray, FloatArray] | None = None,
+    rest_frames: int | None = None,
 ) -> FloatArray:
     """Joint state of every frame of the capture from its depth, consistent with the tracked states.
 
@@ -152,12 +153,17 @@ def depth_states(
             replaced); each holds the search there as a trusted tracked state would, unless its
             depth objects: that state costs more than ``change_cost`` above the frame's best
             (depth sees the part elsewhere; the cue was on something else, e.g. the arm).
+        rest_frames: the part rests at the canonical state from frame 0 until the first frame, at or after
+            ``rest_frames``, whose depth objects to it (the canonical state costs more than ``change_cost``
+            above the frame's best); those frames hold the search there as a trusted tracked state would,
+            where their depth does not object. Frames before ``rest_frames`` (before the scene changed) may
+            object without ending the rest. None: no rest is assumed.
 
     Returns:
         (F,) state of every capture frame (rad or m), same canonical state as ``tracked_states``.
     """
     states, _ = _search(capture, trajectory, joint_type, axis_world, pivot_world, p_world, tracked_frames, tracked_states,
-                        trusted, config, normal_world, arrival, seen_states)
+                        trusted, config, normal_world, arrival, seen_states, rest_frames)
     return states
 
 
@@ -195,8 +201,8 @@ def depth_fit(
 def _search(capture: Capture, trajectory: CameraTrajectory, joint_type: str, axis_world: FloatArray,
             pivot_world: FloatArray | None, p_world: FloatArray, tracked_frames: IntArray, tracked_states: FloatArray,
             trusted: BoolArray, config: DepthStateConfig, normal_world: FloatArray | None,
-            arrival: Arrival | None = None, seen_states: tuple[IntArray, FloatArray] | None = None
-            ) -> tuple[FloatArray, float]:
+            arrival: Arrival | None = None, seen_states: tuple[IntArray, FloatArray] | None = None,
+            rest_frames: int | None = None) -> tuple[FloatArray, float]:
     """(F,) states of :func:`depth_states` and the mean depth cost of the chain over the frames that see the part."""
     F = len(capture)
     revolute = joint_type == "revolute"
@@ -234,6 +240,16 @@ def _search(capture: Capture, trajectory: CameraTrajectory, joint_type: str, axi
         _hold(cost, grid, frames[agree], seen[agree], sigma)
         logger.info("depth states: %d of %d states seen by another cue held (depth objects to the rest)",
                     int(agree.sum()), len(frames))
+    if rest_frames is not None:
+        # A panel sliding in its own plane looks the same in depth wherever it stands but at its edges: at rest its
+        # depth cost is flat in the state, and an arm in front of it (its points hidden there cost occluded_cost)
+        # makes the states that slide them out from behind it slightly cheaper, frame after frame, so that the chain
+        # read the panel's travel long before it moved (dark_pri_wardrobe_00, no tracks on a dark panel: 10.4 cm
+        # over the 44 frames before it moved). Until depth first objects to the canonical state, the part rests.
+        rest = _rest_prefix(depth_only, seeing, int(np.argmin(np.abs(grid))), rest_frames, config.change_cost)
+        _hold(cost, grid, rest, np.zeros(len(rest)), sigma)
+        logger.info("depth states: the part rests at its canonical state in %d of the first %d frames",
+                    len(rest), int(rest.max()) + 1 if len(rest) else 0)
     speed = config.max_speed_rad if revolute else config.max_speed_m
     chain = _min_cost_chain(cost, round(speed / step), config.change_cost)
     states = grid[chain]
@@ -241,6 +257,18 @@ def _search(capture: Capture, trajectory: CameraTrajectory, joint_type: str, axi
                 F, config.min_points, states.min(), states.max())
     mean_cost = float(depth_only[np.arange(F), chain][seeing].mean()) if seeing.any() else float("nan")
     return states, mean_cost
+
+
+def _rest_prefix(depth_only: FloatArray, seeing: BoolArray, canonical: int, rest_frames: int, change_cost: float
+                 ) -> IntArray:
+    """Frames (from 1) of the rest at the canonical grid state (see :func:`depth_states`' ``rest_frames``): those
+    before the first frame at or after ``rest_frames`` whose depth objects to it, less the frames that object."""
+    objects = seeing & (depth_only[:, canonical] > depth_only.min(axis=1) + change_cost)
+    objects[0] = False
+    later = np.flatnonzero(objects[max(rest_frames, 1):])
+    end = max(rest_frames, 1) + int(later[0]) if len(later) else len(objects)
+    frames = np.arange(1, end)
+    return frames[~objects[frames]]
 
 
 def _hold(cost: FloatArray, grid: FloatArray, frames: IntArray, states: FloatArray, sigma: float) -> None:
