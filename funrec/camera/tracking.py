@@ -177,6 +177,13 @@ class TrackingConfig:
     unchanged (no frame switched); the test scene with a hand over a quarter of the view keeps
     its corners (median visible offset 2.0 px under the dragged depth fit, 0.05 px under theirs).
     False: the corners always outvote the depth fit (before 2026-11-27)."""
+    max_camera_acceleration_m_s2: float = 19.6
+    """Where the corners' pose and the depth fit disagree and the corners' pose lies farther from the
+    constant-velocity prediction than this acceleration allows in one frame (a dt^2, dt = 1 / fps: 8.7 cm
+    at 15 fps) while the depth fit's does not, the depth fit gives the pose. 2 g: a walking head
+    accelerates by 0.3-0.5 g, reaching and turning by about 1 g. Measured on person_fast_rev_fridge_00 (a
+    plain fridge front filling the view): 27 corners dragged along the front's outline put the camera 15.5 cm
+    from the prediction in one frame, and refuted the depth fit that stayed on it (camera ATE 13.0 cm)."""
     min_tracked_fraction: float = 0.3
     """Fewer registered frames than this fraction raise ReconstructionError."""
     seed: int = 0
@@ -288,6 +295,12 @@ def _corners_refute(T_keyframe_depth: FloatArray, T_keyframe_features: FloatArra
                          for T in (T_keyframe_depth, T_keyframe_features)])
     offset_depth, offset_features = np.median(visible_offset_px(gray, uv, uv_poses, config.klt_window_px), axis=1)
     return bool(offset_depth > offset_features)
+
+
+def _leaps(T_predicted: FloatArray, T: FloatArray, max_leap_m: float) -> bool:
+    """A pose farther than ``max_leap_m`` from the constant-velocity prediction (see
+    ``TrackingConfig.max_camera_acceleration_m_s2``)."""
+    return pose_difference(T_predicted, T)[0] > max_leap_m
 
 
 def _agree(T_a: FloatArray, T_b: FloatArray, config: TrackingConfig) -> bool:
@@ -411,6 +424,7 @@ def track_camera(capture: Capture, config: TrackingConfig = TrackingConfig(),
     edges: list[tuple[int, int, FloatArray, FloatArray, bool]] = []
     store: list[_Keyframe] = []
     depth_frames = 0
+    max_leap_m = config.max_camera_acceleration_m_s2 / capture.intrinsics.fps**2
 
     def start_keyframe(frame_index: int, frame: _FrameInput, uv: FloatArray, p_camera: FloatArray):
         uv_new = _new_corners(frame, uv, config.max_features - len(uv), config)
@@ -491,11 +505,15 @@ def track_camera(capture: Capture, config: TrackingConfig = TrackingConfig(),
         # decides when the view has moved on, so that a plain view is registered against one
         # keyframe rather than chained frame to frame (dark family: ATE 34 -> 9 mm).
         weak = not features_ok or len(uv) < config.keyframe_min_inliers
-        T_guess = T_features if features_ok else T_node_previous @ T_velocity
+        T_predicted = T_node_previous @ T_velocity
+        leaps = features_ok and _leaps(T_predicted, T_features, max_leap_m)
+        T_guess = T_features if features_ok and not leaps else T_predicted
         depth_fit = register_by_depth(frame, depth_keyframe, T_guess) if weak else None
         if depth_fit is not None and features_ok and not _agree(depth_fit.T_target_source, T_features, config):
-            if config.depth_wins_unseen_slides and not _corners_refute(depth_fit.T_target_source, T_features, frame.gray,
-                                                                        uv, p_keyframe, K, config):
+            if leaps and not _leaps(T_predicted, depth_fit.T_target_source, max_leap_m):
+                features_ok = False  # the corners' pose leaps where no head goes: the depth fit gives the pose
+            elif config.depth_wins_unseen_slides and not _corners_refute(depth_fit.T_target_source, T_features, frame.gray,
+                                                                          uv, p_keyframe, K, config):
                 features_ok = False  # the corners slid along edges: the depth fit gives the pose
             else:
                 depth_fit = None  # the rigid corners outvote a surface fit dragged by the moving hand or door
