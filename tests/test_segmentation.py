@@ -285,11 +285,13 @@ def _rect(corner, e1, e2, rect_id):
 
 
 def _place_vote_case(part_rects, static_rects, T_world_part, wrong: dict[int, list[int]],
-                     p_camera=(0.6, 0.4, 1.3), target=(0.2, 2.0, 0.5)) -> np.ndarray:
+                     p_camera=(0.6, 0.4, 1.3), target=(0.2, 2.0, 0.5), T_world_part_witness=()) -> np.ndarray:
     """The model (3, M), canonical, that :func:`_vote_model` keeps from keyframes whose masks
     label the part's rectangles and, at keyframe q, the static rectangles ``wrong[q]`` (what
     flooding labels part). Cameras from the front right, above (``p_camera``, moving 0.2 m
-    sideways over the keyframes, looking at ``target``), 160 x 120 pixels."""
+    sideways over the keyframes, looking at ``target``), 160 x 120 pixels. Witnesses (depth only)
+    at the part poses ``T_world_part_witness``, seen from the middle keyframe's place."""
+    from funrec.surfaces.motion_evidence import DepthReference
     from funrec.surfaces.segmentation import _View, _vote_model
     from funrec.synth.motion import look_at
 
@@ -299,14 +301,23 @@ def _place_vote_case(part_rects, static_rects, T_world_part, wrong: dict[int, li
     T_world_camera = np.tile(np.eye(4), (Q, 1, 1))
     T_world_camera[:, :3, :3] = look_at(p_camera, np.tile(target, (Q, 1)))
     T_world_camera[:, :3, 3] = p_camera
+
+    def posed(T):
+        R, t = T[:3, :3], T[:3, 3]
+        return [(R @ c + t, R @ e1, R @ e2, i) for c, e1, e2, i in part_rects]
+
     views = []
     for q in range(Q):
-        R, t = T_world_part[q][:3, :3], T_world_part[q][:3, 3]
-        posed = [(R @ c + t, R @ e1, R @ e2, i) for c, e1, e2, i in part_rects]
-        depth, ids = _render(posed + static_rects, T_world_camera[q], K, (120, 160))
+        depth, ids = _render(posed(T_world_part[q]) + static_rects, T_world_camera[q], K, (120, 160))
         part = np.isin(ids, [r[3] for r in part_rects] + wrong.get(q, []))
         views.append(_View(depth, np.zeros(depth.shape, bool), part=part, known=np.ones(depth.shape, bool)))
-    return _vote_model(views, np.linalg.inv(T_world_part) @ T_world_camera, T_world_camera, K, SegmentationConfig())
+    T_middle = T_world_camera[Q // 2]
+    witnesses = []
+    for w, T in enumerate(T_world_part_witness):
+        depth, _ = _render(posed(T) + static_rects, T_middle, K, (120, 160))
+        witnesses.append(DepthReference.from_frame(depth, np.zeros(depth.shape, bool), np.linalg.inv(T_middle), T, 100 + w))
+    return _vote_model(views, np.linalg.inv(T_world_part) @ T_world_camera, T_world_camera, K, SegmentationConfig(),
+                       witnesses, K)
 
 
 def _covered(p: np.ndarray, corner, e1, e2, cell_m: float = 0.02) -> float:
@@ -355,6 +366,32 @@ def test_static_surfaces_labelled_part_that_never_leave_their_place_are_dropped_
     on_door = (np.abs(kept[1] - 2.0) < 0.01) & (kept[0] > -0.01) & (kept[0] < 0.41)
     assert _covered(kept, *door[0][:3]) > 0.9, _covered(kept, *door[0][:3])
     assert (~on_door).mean() < 0.05, f"{(~on_door).sum()} of {kept.shape[1]} kept voxels lie off the door"
+
+
+def test_a_static_surface_hidden_behind_the_open_part_at_every_other_keyframe_is_judged_by_a_witness() -> None:
+    """The door of the test above, with keyframes only closed and fully open (1.4 rad): open, the
+    door stands in front of most of the next door, which the closed keyframes labelled part, so
+    no keyframe sees where those voxels were and the place vote kept them. A depth-only witness
+    at 0.5 rad sees the next door still there: they are dropped, and the door is kept."""
+    door = [_rect([0.0, 2.0, 0.2], [0.4, 0.0, 0.0], [0.0, 0.0, 0.6], 0)]
+    static = [
+        _rect([-0.4, 2.0, 0.2], [0.4, 0.0, 0.0], [0.0, 0.0, 0.6], 1),  # the next door, coplanar when closed
+        _rect([0.0, 2.4, 0.2], [0.4, 0.0, 0.0], [0.0, 0.0, 0.6], 4),  # carcass back
+        _rect([-3.0, 0.0, 0.0], [6.0, 0.0, 0.0], [0.0, 3.0, 0.0], 7),  # floor
+    ]
+    pivot = np.array([0.0, 2.0, 0.0])
+    T_world_part = np.stack([_turn_z(theta, pivot) for theta in [0.0] * 4 + [1.4] * 4])
+    next_door = static[0][:3]
+    wrong = {0: [1], 1: [1], 2: [1], 3: [1]}
+    kept = _place_vote_case(door, static, T_world_part, wrong, p_camera=(0.8, 0.8, 1.3), target=(-0.1, 2.0, 0.5))
+    judged = _place_vote_case(door, static, T_world_part, wrong, p_camera=(0.8, 0.8, 1.3), target=(-0.1, 2.0, 0.5),
+                              T_world_part_witness=[_turn_z(0.5, pivot)])
+    on_next_door = (np.abs(judged[1] - 2.0) < 0.01) & (judged[0] < -0.01)
+    assert _covered(kept, *next_door) > 0.2, _covered(kept, *next_door)  # what the witness is for
+    assert _covered(judged, *next_door) < 0.15, _covered(judged, *next_door)
+    # what is left the witness' turn moved less than 2 tau (0.04 m): a strip 8 cm wide along the hinge
+    assert judged[0][on_next_door].min() > -0.09, judged[0][on_next_door].min()
+    assert _covered(judged, *door[0][:3]) > 0.9, _covered(judged, *door[0][:3])
 
 
 def test_a_drawer_floor_that_slides_along_itself_stays_in_the_model() -> None:
