@@ -211,6 +211,27 @@ def test_depth_evidence_finds_the_moved_plate_and_the_static_wall() -> None:
     assert static[~plate].mean() > 0.5, static[~plate].mean()
 
 
+def test_depth_evidence_finds_a_part_whose_moved_place_hides_behind_a_surface() -> None:
+    """A drawer's inside (a 0.4 m plate at 2 m, in front of a wall at 3 m) pushed 0.4 m back into
+    its carcass, whose front (0.6 m, at 2.3 m) the reference sees where the plate was: the moved
+    place lies behind the front, unseen, and free space is seen through the static place. Plate
+    pixels are part (with the moved place required seen, none was); wall pixels, whose static place
+    is seen or hidden and never free, are not."""
+    from funrec.surfaces.motion_evidence import DepthReference, depth_evidence
+
+    K = np.array([[60.0, 0.0, 39.5], [0.0, 60.0, 29.5], [0.0, 0.0, 1.0]])
+    shape = (60, 80)
+    move = np.array([0.0, 0.0, 0.4])
+    depth_0 = _plane_depth(K, shape, np.array([0.0, 0.0, 2.0]), 0.2, 3.0)
+    depth_1 = _plane_depth(K, shape, np.array([0.0, 0.0, 2.3]), 0.3, 3.0)
+    no_hand = np.zeros(shape, bool)
+    reference = DepthReference.from_frame(depth_1, no_hand, np.eye(4), _translation(move), frame=1)
+    part, _ = depth_evidence(depth_0, no_hand, K, np.eye(4), np.eye(4), [reference], (0.02, 2.0))
+    plate = depth_0 < 2.5
+    assert part[plate].mean() > 0.9, part[plate].mean()
+    assert not (part & ~plate).any()
+
+
 # ----------------------------------------------------------------------------------------------
 # Estimated inputs: stages 1, 2, 3 and 5 on funrec.synth's smoke door and drawer (320x240).
 
