@@ -465,6 +465,40 @@ def test_a_panel_that_slides_along_itself_stays_in_the_model() -> None:
     assert (~on_panel).mean() < 0.05, f"{(~on_panel).sum()} of {kept.shape[1]} kept voxels lie off the panel"
 
 
+def test_witnesses_judge_turns_not_slides() -> None:
+    """One keyframe sees a 0.3 m patch (at 2 m, facing the camera) as part; a witness sees free
+    space behind the places of its right third (those voxels left) and a surface still standing at
+    the others. Turned 0.5 rad about an axis along its left edge: the witness calls the voxels of
+    the left two thirds that moved 2 tau still there. Slid 0.1 m sideways within its plane, the
+    patch carries itself onto itself (where the model holds no voxel, an uncovered place is as
+    likely a coarse depth reading at its edge): no vote at all."""
+    from funrec.surfaces.motion_evidence import DepthReference
+    from funrec.surfaces.segmentation import _place_votes, _View
+
+    K = np.array([[150.0, 0.0, 79.5], [0.0, 150.0, 59.5], [0.0, 0.0, 1.0]])
+    step = 0.004
+    a, b = np.meshgrid(np.arange(0.0, 0.3, step), np.arange(-0.1, 0.1, step))
+    p_part = np.stack([a.ravel(), b.ravel(), np.full(a.size, 2.0)])
+    wall = np.full((120, 160), 2.0, dtype=np.float32)  # a surface where the left two thirds were
+    wall[:, 95:] = 3.0  # free space behind the places of the right third (x > 0.2 m: u > 79.5 + 150 * 0.1)
+    view = _View(wall, np.zeros(wall.shape, bool))
+    slide = _translation(np.array([0.1, 0.0, 0.0]))
+    turn = np.eye(4)
+    c, s_ = np.cos(0.5), np.sin(0.5)
+    turn[:3, :3] = [[c, 0.0, s_], [0.0, 1.0, 0.0], [-s_, 0.0, c]]  # about the y axis through (0, 0, 2)
+    turn[:3, 3] = np.array([0.0, 0.0, 2.0]) - turn[:3, :3] @ np.array([0.0, 0.0, 2.0])
+    votes = {}
+    for name, T in (("slide", slide), ("turn", turn)):
+        witness = DepthReference.from_frame(wall, np.zeros(wall.shape, bool), np.eye(4), T, frame=1)
+        votes[name] = _place_votes([view], p_part, np.ones((1, p_part.shape[1]), bool), np.eye(4)[None],
+                                   np.eye(4)[None], K, SegmentationConfig(), [witness], K)
+    moved = np.linalg.norm(turn[:3, :3] @ p_part + turn[:3, 3:] - p_part, axis=0) > 0.05
+    still = moved & (p_part[0] < 0.19)
+    assert still.sum() > 100 and (votes["turn"][1][still] > 0).mean() > 0.9, (votes["turn"][1][still] > 0).mean()
+    assert (votes["turn"][0][p_part[0] > 0.21] > 0).mean() > 0.9
+    assert not votes["slide"][0].any() and not votes["slide"][1].any()
+
+
 def test_a_part_region_keeps_only_what_its_evidence_reaches_without_a_depth_jump() -> None:
     """A door seen edge-on is a near strip with part evidence; the region it was decided in also
     holds the cabinet's inside 30 cm behind it. A plain front with evidence on one column carries a
