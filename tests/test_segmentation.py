@@ -211,6 +211,27 @@ def test_depth_evidence_finds_the_moved_plate_and_the_static_wall() -> None:
     assert static[~plate].mean() > 0.5, static[~plate].mean()
 
 
+def test_depth_evidence_finds_a_part_whose_moved_place_hides_behind_a_surface() -> None:
+    """A drawer's inside (a 0.4 m plate at 2 m, in front of a wall at 3 m) pushed 0.4 m back into
+    its carcass, whose front (0.6 m, at 2.3 m) the reference sees where the plate was: the moved
+    place lies behind the front, unseen, and free space is seen through the static place. Plate
+    pixels are part (with the moved place required seen, none was); wall pixels, whose static place
+    is seen or hidden and never free, are not."""
+    from funrec.surfaces.motion_evidence import DepthReference, depth_evidence
+
+    K = np.array([[60.0, 0.0, 39.5], [0.0, 60.0, 29.5], [0.0, 0.0, 1.0]])
+    shape = (60, 80)
+    move = np.array([0.0, 0.0, 0.4])
+    depth_0 = _plane_depth(K, shape, np.array([0.0, 0.0, 2.0]), 0.2, 3.0)
+    depth_1 = _plane_depth(K, shape, np.array([0.0, 0.0, 2.3]), 0.3, 3.0)
+    no_hand = np.zeros(shape, bool)
+    reference = DepthReference.from_frame(depth_1, no_hand, np.eye(4), _translation(move), frame=1)
+    part, _ = depth_evidence(depth_0, no_hand, K, np.eye(4), np.eye(4), [reference], (0.02, 2.0))
+    plate = depth_0 < 2.5
+    assert part[plate].mean() > 0.9, part[plate].mean()
+    assert not (part & ~plate).any()
+
+
 # ----------------------------------------------------------------------------------------------
 # Estimated inputs: stages 1, 2, 3 and 5 on funrec.synth's smoke door and drawer (320x240).
 
@@ -285,11 +306,13 @@ def _rect(corner, e1, e2, rect_id):
 
 
 def _place_vote_case(part_rects, static_rects, T_world_part, wrong: dict[int, list[int]],
-                     p_camera=(0.6, 0.4, 1.3), target=(0.2, 2.0, 0.5)) -> np.ndarray:
+                     p_camera=(0.6, 0.4, 1.3), target=(0.2, 2.0, 0.5), T_world_part_witness=()) -> np.ndarray:
     """The model (3, M), canonical, that :func:`_vote_model` keeps from keyframes whose masks
     label the part's rectangles and, at keyframe q, the static rectangles ``wrong[q]`` (what
     flooding labels part). Cameras from the front right, above (``p_camera``, moving 0.2 m
-    sideways over the keyframes, looking at ``target``), 160 x 120 pixels."""
+    sideways over the keyframes, looking at ``target``), 160 x 120 pixels. Witnesses (depth only)
+    at the part poses ``T_world_part_witness``, seen from the middle keyframe's place."""
+    from funrec.surfaces.motion_evidence import DepthReference
     from funrec.surfaces.segmentation import _View, _vote_model
     from funrec.synth.motion import look_at
 
@@ -299,14 +322,23 @@ def _place_vote_case(part_rects, static_rects, T_world_part, wrong: dict[int, li
     T_world_camera = np.tile(np.eye(4), (Q, 1, 1))
     T_world_camera[:, :3, :3] = look_at(p_camera, np.tile(target, (Q, 1)))
     T_world_camera[:, :3, 3] = p_camera
+
+    def posed(T):
+        R, t = T[:3, :3], T[:3, 3]
+        return [(R @ c + t, R @ e1, R @ e2, i) for c, e1, e2, i in part_rects]
+
     views = []
     for q in range(Q):
-        R, t = T_world_part[q][:3, :3], T_world_part[q][:3, 3]
-        posed = [(R @ c + t, R @ e1, R @ e2, i) for c, e1, e2, i in part_rects]
-        depth, ids = _render(posed + static_rects, T_world_camera[q], K, (120, 160))
+        depth, ids = _render(posed(T_world_part[q]) + static_rects, T_world_camera[q], K, (120, 160))
         part = np.isin(ids, [r[3] for r in part_rects] + wrong.get(q, []))
         views.append(_View(depth, np.zeros(depth.shape, bool), part=part, known=np.ones(depth.shape, bool)))
-    return _vote_model(views, np.linalg.inv(T_world_part) @ T_world_camera, T_world_camera, K, SegmentationConfig())
+    T_middle = T_world_camera[Q // 2]
+    witnesses = []
+    for w, T in enumerate(T_world_part_witness):
+        depth, _ = _render(posed(T) + static_rects, T_middle, K, (120, 160))
+        witnesses.append(DepthReference.from_frame(depth, np.zeros(depth.shape, bool), np.linalg.inv(T_middle), T, 100 + w))
+    return _vote_model(views, np.linalg.inv(T_world_part) @ T_world_camera, T_world_camera, K, SegmentationConfig(),
+                       witnesses, K)
 
 
 def _covered(p: np.ndarray, corner, e1, e2, cell_m: float = 0.02) -> float:
@@ -357,6 +389,32 @@ def test_static_surfaces_labelled_part_that_never_leave_their_place_are_dropped_
     assert (~on_door).mean() < 0.05, f"{(~on_door).sum()} of {kept.shape[1]} kept voxels lie off the door"
 
 
+def test_a_static_surface_hidden_behind_the_open_part_at_every_other_keyframe_is_judged_by_a_witness() -> None:
+    """The door of the test above, with keyframes only closed and fully open (1.4 rad): open, the
+    door stands in front of most of the next door, which the closed keyframes labelled part, so
+    no keyframe sees where those voxels were and the place vote kept them. A depth-only witness
+    at 0.5 rad sees the next door still there: they are dropped, and the door is kept."""
+    door = [_rect([0.0, 2.0, 0.2], [0.4, 0.0, 0.0], [0.0, 0.0, 0.6], 0)]
+    static = [
+        _rect([-0.4, 2.0, 0.2], [0.4, 0.0, 0.0], [0.0, 0.0, 0.6], 1),  # the next door, coplanar when closed
+        _rect([0.0, 2.4, 0.2], [0.4, 0.0, 0.0], [0.0, 0.0, 0.6], 4),  # carcass back
+        _rect([-3.0, 0.0, 0.0], [6.0, 0.0, 0.0], [0.0, 3.0, 0.0], 7),  # floor
+    ]
+    pivot = np.array([0.0, 2.0, 0.0])
+    T_world_part = np.stack([_turn_z(theta, pivot) for theta in [0.0] * 4 + [1.4] * 4])
+    next_door = static[0][:3]
+    wrong = {0: [1], 1: [1], 2: [1], 3: [1]}
+    kept = _place_vote_case(door, static, T_world_part, wrong, p_camera=(0.8, 0.8, 1.3), target=(-0.1, 2.0, 0.5))
+    judged = _place_vote_case(door, static, T_world_part, wrong, p_camera=(0.8, 0.8, 1.3), target=(-0.1, 2.0, 0.5),
+                              T_world_part_witness=[_turn_z(0.5, pivot)])
+    on_next_door = (np.abs(judged[1] - 2.0) < 0.01) & (judged[0] < -0.01)
+    assert _covered(kept, *next_door) > 0.2, _covered(kept, *next_door)  # what the witness is for
+    assert _covered(judged, *next_door) < 0.15, _covered(judged, *next_door)
+    # what is left the witness' turn moved less than 2 tau (0.04 m): a strip 8 cm wide along the hinge
+    assert judged[0][on_next_door].min() > -0.09, judged[0][on_next_door].min()
+    assert _covered(judged, *door[0][:3]) > 0.9, _covered(judged, *door[0][:3])
+
+
 def test_a_drawer_floor_that_slides_along_itself_stays_in_the_model() -> None:
     """A drawer (front 0.4 x 0.1 m, floor 0.4 m deep) slides 0.3 m out of its carcass. Its floor is
     a plane the slide carries onto itself: at a less open keyframe the floor is still seen where
@@ -405,6 +463,40 @@ def test_a_panel_that_slides_along_itself_stays_in_the_model() -> None:
     on_panel = (np.abs(kept[1] - 2.0) < 0.01) & (kept[0] > -0.01) & (kept[0] < 0.61)
     assert _covered(kept, *panel[0][:3]) > 0.9, _covered(kept, *panel[0][:3])
     assert (~on_panel).mean() < 0.05, f"{(~on_panel).sum()} of {kept.shape[1]} kept voxels lie off the panel"
+
+
+def test_witnesses_judge_turns_not_slides() -> None:
+    """One keyframe sees a 0.3 m patch (at 2 m, facing the camera) as part; a witness sees free
+    space behind the places of its right third (those voxels left) and a surface still standing at
+    the others. Turned 0.5 rad about an axis along its left edge: the witness calls the voxels of
+    the left two thirds that moved 2 tau still there. Slid 0.1 m sideways within its plane, the
+    patch carries itself onto itself (where the model holds no voxel, an uncovered place is as
+    likely a coarse depth reading at its edge): no vote at all."""
+    from funrec.surfaces.motion_evidence import DepthReference
+    from funrec.surfaces.segmentation import _place_votes, _View
+
+    K = np.array([[150.0, 0.0, 79.5], [0.0, 150.0, 59.5], [0.0, 0.0, 1.0]])
+    step = 0.004
+    a, b = np.meshgrid(np.arange(0.0, 0.3, step), np.arange(-0.1, 0.1, step))
+    p_part = np.stack([a.ravel(), b.ravel(), np.full(a.size, 2.0)])
+    wall = np.full((120, 160), 2.0, dtype=np.float32)  # a surface where the left two thirds were
+    wall[:, 95:] = 3.0  # free space behind the places of the right third (x > 0.2 m: u > 79.5 + 150 * 0.1)
+    view = _View(wall, np.zeros(wall.shape, bool))
+    slide = _translation(np.array([0.1, 0.0, 0.0]))
+    turn = np.eye(4)
+    c, s_ = np.cos(0.5), np.sin(0.5)
+    turn[:3, :3] = [[c, 0.0, s_], [0.0, 1.0, 0.0], [-s_, 0.0, c]]  # about the y axis through (0, 0, 2)
+    turn[:3, 3] = np.array([0.0, 0.0, 2.0]) - turn[:3, :3] @ np.array([0.0, 0.0, 2.0])
+    votes = {}
+    for name, T in (("slide", slide), ("turn", turn)):
+        witness = DepthReference.from_frame(wall, np.zeros(wall.shape, bool), np.eye(4), T, frame=1)
+        votes[name] = _place_votes([view], p_part, np.ones((1, p_part.shape[1]), bool), np.eye(4)[None],
+                                   np.eye(4)[None], K, SegmentationConfig(), [witness], K)
+    moved = np.linalg.norm(turn[:3, :3] @ p_part + turn[:3, 3:] - p_part, axis=0) > 0.05
+    still = moved & (p_part[0] < 0.19)
+    assert still.sum() > 100 and (votes["turn"][1][still] > 0).mean() > 0.9, (votes["turn"][1][still] > 0).mean()
+    assert (votes["turn"][0][p_part[0] > 0.21] > 0).mean() > 0.9
+    assert not votes["slide"][0].any() and not votes["slide"][1].any()
 
 
 def test_a_part_region_keeps_only_what_its_evidence_reaches_without_a_depth_jump() -> None:

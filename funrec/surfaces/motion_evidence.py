@@ -176,13 +176,14 @@ class DepthReference:
         near = cv2.erode(np.where(valid, depth_m, np.float32(np.inf)).astype(np.float32), np.ones((3, 3), np.uint8))
         return cls(frame, depth_m, near, ~valid | hand, T_camera_world, T_world_part)
 
-    def observe(self, p_world: FloatArray, K: FloatArray, tolerance: tuple[float, float], return_pixel: bool = False
-                ) -> tuple[BoolArray, ...]:
+    def observe(self, p_world: FloatArray, K: FloatArray, tolerance: tuple[float, float], return_pixel: bool = False,
+                return_hidden: bool = False) -> tuple[BoolArray, ...]:
         """Whether each of the (3, n) world points is seen here (observed depth within tau of its
         depth) and whether free space is seen through it (even the nearest neighbouring reading
         lies more than tau behind it). Points outside the image, behind the camera or on blocked
         pixels are neither. With ``return_pixel`` also the (n,) flat pixel index v * w + u (0
-        where outside)."""
+        where outside); with ``return_hidden`` (instead) also whether a surface is seen more than
+        tau in front of each point (it may lie there, unseen)."""
         p_camera = self.T_camera_world[:3, :3] @ p_world + self.T_camera_world[:3, 3:]
         z = p_camera[2]
         h, w = self.depth_m.shape
@@ -196,6 +197,8 @@ class DepthReference:
         tau = depth_tolerance(z, *tolerance)
         seen = inside & (np.abs(self.depth_m[v, u] - z) < tau)
         free = inside & (self.depth_near_m[v, u] > z + tau)
+        if return_hidden:
+            return seen, free, inside & (self.depth_m[v, u] > 0) & (self.depth_m[v, u] < z - tau)
         return (seen, free, v * w + u) if return_pixel else (seen, free)
 
 
@@ -206,9 +209,20 @@ def depth_evidence(depth_m: Float32Array, hand: BoolArray, K: FloatArray, T_worl
 
     Each pixel's point is carried to every reference twice: as static world, and moved with the
     part (``T_world_part_ref @ inv(T_world_part)``). A pixel is part when some reference sees
-    through its static place (free space) and some sees it at its moved place, and free space at
-    the moved place is rarer than at the static one; static is the converse. Surfaces that slide
-    within themselves (a drawer's floor moving along itself) stay undecided, as do occluded ones.
+    through its static place (free space) and some sees it at its moved place or a surface in
+    front of that place, and free space at the moved place is rarer than at the static one; static
+    is the converse, with the static place seen. Surfaces that slide within themselves (a drawer's
+    floor moving along itself) stay undecided, as do occluded ones.
+
+    A moved place behind a surface does not contradict the part: the inside of a drawer seen
+    pulled out is, at any less open reference, in the carcass behind its front, and only free
+    space at the static place tells (before, a part pixel needed its moved place seen, and the
+    inside of person_partial_pri_drawer_00 fully open had no evidence: 16-18 thousand true pixels
+    unknown at each open keyframe). Free space where a static surface should be is the strong
+    evidence; a moved place seen in front is still refused. Measured on the dumped mask inputs
+    of 9 sequences: person_partial_pri_drawer_00 mIoU 83.0 -> 87.9, plain_pri_wardrobe_00
+    70.9 -> 75.9, plain_pri_drawer_00 94.7 -> 94.8, mw_window_00 75.5 -> 75.2, the five others
+    (doors, fridge, glass wall, sleeve arm) within 0.1.
 
     Args:
         depth_m: (h, w) depth, metres (0 = missing), at the size ``K`` describes.
@@ -227,18 +241,19 @@ def depth_evidence(depth_m: Float32Array, hand: BoolArray, K: FloatArray, T_worl
     valid = np.isfinite(p_camera[:, 2]) & ~hand.ravel()
     p_world = T_world_camera[:3, :3] @ np.ascontiguousarray(p_camera[valid].T) + T_world_camera[:3, 3:]
     T_part_world = invert_transform(T_world_part)
-    part_seen = part_free = static_seen = static_free = np.zeros(p_world.shape[1], dtype=np.int32)
+    part_seen = part_free = static_seen = static_free = part_hidden = np.zeros(p_world.shape[1], dtype=np.int32)
     for reference in references:
         T_move = reference.T_world_part @ T_part_world
         if np.allclose(T_move, np.eye(4), atol=1e-6):
             continue  # same part state: both hypotheses predict the same, nothing to learn
         seen, free = reference.observe(p_world, K, tolerance)
         static_seen, static_free = static_seen + seen, static_free + free
-        seen, free = reference.observe(T_move[:3, :3] @ p_world + T_move[:3, 3:], K, tolerance)
-        part_seen, part_free = part_seen + seen, part_free + free
+        seen, free, hidden = reference.observe(T_move[:3, :3] @ p_world + T_move[:3, 3:], K, tolerance,
+                                               return_hidden=True)
+        part_seen, part_free, part_hidden = part_seen + seen, part_free + free, part_hidden + hidden
     part = np.zeros(h * w, dtype=bool)
     static = np.zeros(h * w, dtype=bool)
-    part[valid] = (part_seen > 0) & (static_free > 0) & (part_free < static_free)
+    part[valid] = ((part_seen > 0) | (part_hidden > 0)) & (static_free > 0) & (part_free < static_free)
     static[valid] = (static_seen > 0) & (part_free > 0) & (static_free < part_free)
     return part.reshape(h, w), static.reshape(h, w)
 
