@@ -21,7 +21,14 @@ from funrec.formats.ground_truth import GroundTruth, read_ground_truth
 from funrec.formats.twin import ArticulatedPart, read_articulation
 from funrec.typed import FloatArray
 from funrec_robot.errors import format_names
-from funrec_robot.handle_geometry import BIN_M, FRONT_SHARE, MIN_HANDLE_POINTS, PROUD_M, measure_handle
+from funrec_robot.handle_geometry import (
+    BIN_M,
+    FRONT_SHARE,
+    MIN_HANDLE_POINTS,
+    PROUD_M,
+    bar_thickness_min,
+    measure_handle,
+)
 from funrec_robot.scene import part_front, part_joint
 from funrec_robot.task import ArticulationTask
 
@@ -334,10 +341,13 @@ def task_from_twin(
         why += "; the grasp is on a handle the part mesh shows" if on_handle else "; the grasp is a guess on the part's front"
     # The handle's standoff from the part's front and its shape, measured on the part mesh around a contact
     # the hand made (not around one guessed on the front itself: the planner then assumes a standoff).
-    standoff, thickness_max = None, None
+    standoff, thickness_max, thickness_min = None, None, None
     if affordance is not None or on_handle:
-        shape = measure_handle(_part_points(root, joint), p_contact, approach, handle_axis)
+        p_part = _part_points(root, joint)
+        shape = measure_handle(p_part, p_contact, approach, handle_axis)
         standoff, thickness_max = shape.standoff, shape.thickness_max
+        if standoff is None and handle_axis is not None:  # no front near the contact: a bar standing far off it
+            thickness_min = bar_thickness_min(p_part, p_contact, handle_axis)
         if shape.is_knob and shape.p_centre is not None:
             p_contact, handle_axis, thickness_max = shape.p_centre, None, None
         elif shape.p_bar is not None and np.any(shape.p_bar != p_contact):
@@ -357,6 +367,7 @@ def task_from_twin(
         handle_axis_world=None if handle_axis is None else _transform_vector(T, handle_axis),
         surface_offset=standoff,
         handle_width_max=thickness_max,
+        handle_width_min=thickness_min,
         demo_times=demo_times,
         demo_states=demo_states,
         source=source,
