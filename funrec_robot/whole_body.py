@@ -61,6 +61,23 @@ def posture_along(robot: RobotDescription, placement: BasePlacement, n: int) -> 
     return posture
 
 
+def _from_grasp(robot: RobotDescription, posture: FloatArray, q_grasp: FloatArray) -> FloatArray:
+    """(N, nq) posture references along the handle path whose base starts where the grasp left it and reaches the
+    planned stops by the path's end: the base's offset from its planned pose at the grasp fades linearly along the
+    path. Pulled to the planned pose at the path's first target instead, the base of Fetch, which the approach had
+    left 19 cm off it, swept back 9 cm and its shoulder 0.22 rad round while the door turned 0.02 rad (the hand
+    held on the twin's handle, pressing on the true one: shoulder pan beyond its effort limit, 152 N on the handle,
+    person_sleeve_rev_cabinet_00)."""
+    nb = len(robot.base_joints)
+    offset = np.asarray(q_grasp[:nb], dtype=np.float64) - posture[0, :nb]
+    for k, motion in enumerate(robot.base_motions):
+        if motion == "yaw":
+            offset[k] = float(np.angle(np.exp(1j * offset[k])))
+    out = posture.copy()
+    out[:, :nb] += np.outer(np.linspace(1.0, 0.0, len(posture)), offset)
+    return out
+
+
 def whole_body_configurations(
     robot: RobotDescription,
     model: mujoco.MjModel,
@@ -195,7 +212,7 @@ def _from_pregrasp(
         q_grasp = final_path[-1]
         approach[-1] = q_grasp
 
-    tracked = ik.track(path[1:], states[1:], q_grasp, posture[1:], holding, unload,
+    tracked = ik.track(path[1:], states[1:], q_grasp, _from_grasp(robot, posture[1:], q_grasp), holding, unload,
                        give_up=(config.track_position_tolerance, config.track_orientation_tolerance))
     worst = _worst_target(tracked.position_error, tracked.orientation_error, config)
     _require(tracked.position_error[worst], tracked.orientation_error[worst], config, "handle path", states[1 + worst], task)
