@@ -180,6 +180,27 @@ MESH_HANDLE_RADIUS_M = 0.04
 point, m: a knob (1.6-3.2 cm) whole, or a stretch of a bar."""
 
 
+LEVEL_BAR_MAX_TILT = np.deg2rad(30.0)
+"""A round bar whose axis lies within this of level is taken level (``_level_approach``), rad."""
+
+
+def _level_approach(approach: FloatArray, handle_axis: FloatArray) -> FloatArray:
+    """(3,) the approach onto a round bar that stands far off its part (no front near the contact), turned about the
+    bar's axis to level, on the side the hand came from: a round bar may be taken from any side, and is taken as the
+    hand takes a drawer's or a window's bar, into the part. The affordance's approach is the hand's own: from above
+    on the twins of mw_drawer_00 (51 degrees down) and mw_window_00 (38), where a drawer pulled level then drew the
+    bar along the jaws and out of them (funrec_mm 58 N, Spot 78 N; Fetch left it 3.4 cm short). Unchanged for a bar
+    more than ``LEVEL_BAR_MAX_TILT`` off level (the twin's z is up)."""
+    handle_axis = np.asarray(handle_axis, dtype=np.float64)
+    level = np.cross(np.array([0.0, 0.0, 1.0]), handle_axis)
+    if np.linalg.norm(level) < np.cos(LEVEL_BAR_MAX_TILT):
+        return approach
+    level /= np.linalg.norm(level)
+    level -= handle_axis * float(level @ handle_axis)
+    level /= np.linalg.norm(level)
+    return level if float(level @ approach) >= 0.0 else -level
+
+
 def _part_points(root: Path, joint: ArticulatedPart) -> FloatArray:
     """(N, 3) vertices of a twin part's mesh (canonical state, twin world); empty without a mesh."""
     import trimesh
@@ -348,6 +369,8 @@ def task_from_twin(
         standoff, thickness_max = shape.standoff, shape.thickness_max
         if standoff is None and handle_axis is not None:  # no front near the contact: a bar standing far off it
             thickness_min = bar_thickness_min(p_part, p_contact, handle_axis)
+            if thickness_min is not None:
+                approach = _level_approach(approach, handle_axis)
         if shape.is_knob and shape.p_centre is not None:
             p_contact, handle_axis, thickness_max = shape.p_centre, None, None
         elif shape.p_bar is not None and np.any(shape.p_bar != p_contact):
