@@ -3,6 +3,7 @@ approach onto a round bar far off its part is level (funrec_robot.task_sources._
 
 from __future__ import annotations
 
+import time
 from types import SimpleNamespace
 from typing import cast
 
@@ -44,3 +45,58 @@ def test_a_round_bar_far_off_its_part_is_approached_level_from_the_hand_side() -
     np.testing.assert_allclose(_level_approach(-approach, bar), -level)
     upright = np.array([0.0, np.sin(0.6), np.cos(0.6)])  # 56 degrees off level
     assert _level_approach(approach, upright) is approach
+
+
+def test_a_base_off_the_line_of_its_placed_heading_is_measured_across_it() -> None:
+    """Stretch 3's base ended its pre-grasp solve 4.8 cm across the line of its placed heading (rolling back and
+    forth while it turned); a roll along the heading is no offset, and a base that does not turn has none."""
+    from funrec_robot.whole_body import _sideways
+
+    diff = cast(RobotDescription, SimpleNamespace(drive="differential", base_motions=("x", "y", "yaw")))
+    holo = cast(RobotDescription, SimpleNamespace(drive="holonomic", base_motions=("x", "y")))
+    yaw = -2.984
+    placed = np.array([0.016, 1.031, yaw, 0.5])
+    heading = np.array([np.cos(yaw), np.sin(yaw)])
+    rolled = placed + np.r_[0.18 * heading, 0.2, 0.0]
+    assert _sideways(diff, placed, rolled) < 1e-12
+    across = placed + np.r_[0.048 * np.array([-heading[1], heading[0]]), 0.0, 0.0]
+    assert abs(_sideways(diff, placed, across) - 0.048) < 1e-12
+    assert _sideways(holo, placed[:2], across[:2]) == 0.0
+
+
+def test_a_lift_overloaded_by_gravity_ends_the_search_at_once(monkeypatch) -> None:  # noqa: ANN001
+    """A lift holds the weight above it and the part's pull on the hand in every posture, grasp and placement: a
+    gravity overload naming it ends the search with that error (Stretch 3 spent its 10 s budget on
+    plain_rev_oven_00's twin at 63.0-63.9 N of 70 N each time). One naming a wrist joint tries the next posture."""
+    import pytest
+
+    from funrec_robot import plan
+    from funrec_robot.feasibility import GravityOverload
+    from funrec_robot.plan_config import PlanConfig
+
+    calls: list[str] = []
+
+    def overloaded(joint: str):  # noqa: ANN202
+        def configurations(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
+            calls.append(joint)
+            raise GravityOverload(f"at the planned grasp {joint} must hold too much", joint)
+        return configurations
+
+    monkeypatch.setattr(plan, "place_base", lambda problem, config: SimpleNamespace(poses=np.zeros((1, 3))))
+    monkeypatch.setattr(plan, "_placement_problem", lambda *args: None)
+    robot = SimpleNamespace(arm_joints=("joint_lift", "joint_wrist"), q_postures=(np.zeros(2),), q_home=np.zeros(2))
+    config = PlanConfig()
+    handle = SimpleNamespace(config=config, candidates=[SimpleNamespace(frames=np.eye(4)[None])] * 2,
+                             states=np.linspace(0.0, 1.0, 5), final_state=None, target_state=1.0)
+    task = SimpleNamespace(part="door")
+    lifted = SimpleNamespace(lift_range=(0.0, 1.0), fingertip_depth=0.05)
+    monkeypatch.setattr(plan, "whole_body_configurations", overloaded("joint_lift"))
+    with pytest.raises(GravityOverload, match="joint_lift"):
+        plan._search(robot, None, 0, task, lifted, handle, time.process_time())
+    assert calls == ["joint_lift"]
+    calls.clear()
+    monkeypatch.setattr(plan, "whole_body_configurations", overloaded("joint_wrist"))
+    monkeypatch.setattr(plan, "replace", lambda obj, **changes: obj)
+    with pytest.raises(GravityOverload, match="joint_wrist"):
+        plan._search(robot, None, 0, task, lifted, handle, time.process_time())
+    assert len(calls) > 1
