@@ -41,6 +41,7 @@ from funrec_robot.robot import RobotDescription, load_robot
 from funrec_robot.robot_geometry import RobotGeometry, measure_robot
 from funrec_robot.scene import (
     bodies_geoms,
+    hull_approximated,
     part_geoms,
     part_joint,
     part_sweep_footprint,
@@ -93,7 +94,8 @@ def _placement_problem(
     circles = geometry.base_circles + geometry.arm_circles
     z_band = (min(c.z_band[0] for c in circles), max(c.z_band[1] for c in circles))
     exclude = np.concatenate([bodies_geoms(model, robot_bodies(model)), part_geoms(model, joint)])
-    static = static_footprint(model, exclude, z_band, wrist[:, :2].mean(axis=0), config.footprint_radius)
+    static = static_footprint(model, exclude, z_band, wrist[:, :2].mean(axis=0), config.footprint_radius,
+                              standing=hull_approximated(model, joint))
     sweeps = []
     for b in range(bases):
         mine = states[(stretch == b) | (stretch == b + 1)]

@@ -100,3 +100,20 @@ def test_a_lift_overloaded_by_gravity_ends_the_search_at_once(monkeypatch) -> No
     with pytest.raises(GravityOverload, match="joint_wrist"):
         plan._search(robot, None, 0, task, lifted, handle, time.process_time())
     assert len(calls) > 1
+
+
+def test_a_twin_piece_seen_above_the_base_is_taken_to_stand_on_the_floor() -> None:
+    """A twin's worktop seen at 0.76-0.9 m (nothing under it: light_harsh_rev_wall_00) lies above a base band of
+    0.05-0.5 m: placed clear of what the twin holds, robots stood in the true lower cabinets. Taken to stand on the
+    floor (``standing``), it is an obstacle; a ceiling piece at 2.6 m is not, nor is anything on a true scene."""
+    from funrec_robot.scene import _footprints, box_corners
+
+    def box(z_low: float, z_high: float) -> np.ndarray:
+        centre, half = np.array([1.0, 0.0, (z_low + z_high) / 2]), np.array([0.3, 0.3, (z_high - z_low) / 2])
+        return box_corners(centre[None], np.eye(3)[None], half[None])[0]
+
+    corners = np.stack([box(0.76, 0.9), box(2.6, 2.7)])
+    band = (0.05, 0.5)
+    assert _footprints(corners, ["worktop", "ceiling"], band) == []
+    kept = _footprints(corners, ["worktop", "ceiling"], band, standing=True)
+    assert [p.name for p in kept] == ["worktop"]
