@@ -646,7 +646,7 @@ def _plan_interaction(robot: RobotDescription, scene_xml: str | Path, task: Arti
         # base holds its planned heading as a holonomic base holds its pose, and rolls (Stretch 3 turned by up to
         # 2 rad as a door opened, drew its telescope in to the stop and missed the handle by 6-8 mm). An arm with
         # a shoulder that pans turns with its base cheaply (TIAGo follows a door round so).
-        config = replace(config, ik=replace(config.ik, posture_cost_rolling_yaw=config.ik.posture_cost_base))
+        config = replace(config, ik=replace(config.ik, posture_cost_rolling_yaw=config.ik.posture_cost_base, hold_line=True))
     handle = _handle_path(robot, model, joint, task, geometry, target, start, config)
     refusal = _floor_refusal(robot, model, joint, task, geometry, handle)
     if refusal is not None:

@@ -139,17 +139,19 @@ def whole_body_configurations(
 
     scored = []
     # The hand's poses are solved with a differential drive free to roll along its heading (as along the handle
-    # path): a telescoping arm reaches sideways, and its base's roll is what moves the hand along the front. A
-    # pre-grasp pose whose base ended off the line of its placed heading is solved again with the base where it was
-    # placed (turning on the spot only), kept if reached: from home, rolling back and forth while it turned, Stretch
-    # 3's base shifted 4.8 cm sideways towards a drawer (as a car parks), the telescope then had 4.8 cm less to draw
-    # in than placed, and the IK missed the drawer's last centimetres by 6-16 mm (5 twins).
+    # path): a telescoping arm reaches sideways, and its base's roll is what moves the hand along the front. For such
+    # an arm (``IKConfig.hold_line``), a pre-grasp pose whose base ended off the line of its placed heading is solved
+    # again with the base where it was placed (turning on the spot only), kept if reached: from home, rolling back
+    # and forth while it turned, Stretch 3's base shifted 4.8 cm sideways towards a drawer (as a car parks), the
+    # telescope then had 4.8 cm less to draw in than placed, and the IK missed the drawer's last centimetres by 6-16
+    # mm (5 twins).
     for flip in (False, True):
         # The hand's targets: the handle frames, off the handle along the closing axis for a fixed jaw.
         path = (frames @ FLIP if flip else frames) @ offset_frame(grasp.offset)
         T_pre = offset_along_approach(path[0], config.pregrasp_distance)
         q_pre, e_pos, e_rot = ik.solve(T_pre, q_start, posture[0], start_state, opening, unload=unload, rolling=True)
-        if _sideways(robot, q_start, q_pre) > config.track_position_tolerance and _reached(e_pos, e_rot, config):
+        sideways = _sideways(robot, q_start, q_pre)
+        if config.ik.hold_line and sideways > config.track_position_tolerance and _reached(e_pos, e_rot, config):
             q_held, e_held, r_held = ik.solve(T_pre, q_start, posture[0], start_state, opening, unload=unload, rolling=False)
             if _reached(e_held, r_held, config):
                 q_pre, e_pos, e_rot = q_held, e_held, r_held
