@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -109,12 +109,36 @@ def bench_suite(
         family = _family(gt.extra)
         case_rows = (_ground_truth_rows if twins is None else _twin_rows)(
             case, gt, robot, target, plan_config, check_config, plans_dir, None if twins is None else Path(twins) / case)
-        for row in case_rows:
+        for row in _isolated(case, gt, case_rows):
             row = replace(row, family=family)
             rows.append(row)
             if progress is not None:
                 progress(row)
     return tuple(rows)
+
+
+def _isolated(case: str, gt: Any, case_rows: Iterator[BenchRow]) -> Iterator[BenchRow]:
+    """The rows of one case; an unexpected exception (a bug, not a ``FunrecError``) ends only that case: each of its
+    true parts not yet reported becomes a failure row naming the exception (its traceback logged with -v)."""
+    done: set[str] = set()
+    clock, cpu = time.perf_counter(), time.process_time()
+    try:
+        for row in case_rows:
+            done.add(row.part)
+            yield row
+            clock, cpu = time.perf_counter(), time.process_time()
+    except Exception as exc:  # noqa: BLE001 - one part's bug must not end the bench
+        why = _unexpected(case, exc)
+        for gt_part in gt.parts:
+            if gt_part.part.name not in done:
+                yield _not_planned(case, gt_part.part.name, gt_part.part.joint_type, why, clock, cpu)
+
+
+def _unexpected(case: str, exc: Exception) -> str:
+    """A failure's text for an unexpected exception, logged (with its traceback when debugging)."""
+    why = f"unexpected error: {type(exc).__name__}: {exc}"
+    log.error("%s: %s", case, why, exc_info=log.isEnabledFor(logging.DEBUG))
+    return why
 
 
 def _family(extra: dict[str, Any]) -> str:
@@ -182,6 +206,9 @@ def _twin_rows(case, gt, robot, target, plan_config, check_config, plans_dir, tw
         except FunrecError as exc:
             errors.append((f"twin {name}: {exc}", isinstance(exc, Refusal)))
             continue  # judged below as its true part's failure, if no other twin part succeeds
+        except Exception as exc:  # noqa: BLE001 - a bug planning one twin part leaves the others to be tried
+            errors.append((f"twin {name}: {_unexpected(case, exc)}", False))
+            continue
         if joint in done:
             continue
         plan_time, plan_cpu = time.perf_counter() - clock, time.process_time() - cpu

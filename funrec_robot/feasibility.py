@@ -31,6 +31,11 @@ from funrec_robot.sim_model import apply_couplings, hand_bodies, robot_indices
 class GravityOverload(PlanningError):
     """A planned configuration needs more of a joint's effort limit than allowed just to hold the arm up."""
 
+    def __init__(self, message: str, joint: str | None = None) -> None:
+        super().__init__(message)
+        self.joint = joint
+        """The planning joint overloaded; None if not told."""
+
 
 MIN_EFFORT_LEFT = 0.05
 """Share of a joint's effort limit :func:`dynamic_limits` counts on at the least for moving it, however much of

@@ -349,6 +349,8 @@ def _graspable_tilts(
 ) -> list[tuple[float, float, float, float]]:
     out = []
     gripper = robot.gripper
+    if _too_thick(robot, task):
+        return out
     for tilt in config.tilts:
         if task.handle_width is not None and handle_across(task, tilt) > gripper.open_gap:
             continue  # a handle wider across the pads than the jaws open cannot be taken
@@ -359,10 +361,18 @@ def _graspable_tilts(
     return out
 
 
+def _too_thick(robot: RobotDescription, task: ArticulationTask) -> bool:
+    """A handle of unknown thickness that is at least wider than the open jaws at every tilt (a round bar)."""
+    return task.handle_width is None and task.handle_width_min is not None and task.handle_width_min > robot.gripper.open_gap
+
+
 def ungraspable_reason(robot: RobotDescription, task: ArticulationTask, config: GraspConfig) -> str:
     """Why ``graspable_tilts`` finds no tilt, naming the dimension that fails: the handle's extent across the
     pads at its narrowest tilt against the jaws' open gap, or, where it fits, the palm and the part's front."""
     if task.handle_width is None:
+        if _too_thick(robot, task):
+            return (f"its bar is at least {1000.0 * task.handle_width_min:.0f} mm thick at any tilt (a round bar fitted "
+                    f"to the part's mesh), wider than the jaws open ({1000.0 * robot.gripper.open_gap:.0f} mm)")
         return "its bar meets the palm, or the fingertips meet the part's front"
     gap, width = 1000.0 * robot.gripper.open_gap, 1000.0 * task.handle_width
     narrowest = 1000.0 * min(handle_across(task, tilt) for tilt in config.tilts)

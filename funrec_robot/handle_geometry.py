@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from funrec.geometry.fitting import fit_circles
 from funrec.typed import FloatArray
 
 RING_M = (0.04, 0.15)
@@ -151,4 +152,51 @@ def measure_handle(
     return HandleShape(standoff, float(np.ptp(along[handle])), centre, p_bar, thickness)
 
 
-__all__ = ["BAR_MAX_WIDTH_M", "BAR_SHIFT_MIN_M", "BIN_M", "FRONT_SHARE", "KNOB_MAX_LENGTH_M", "MIN_HANDLE_POINTS", "PROUD_M", "HandleShape", "front_standoff", "measure_handle"]
+BAR_FIT_RADIUS_M = 0.06
+"""A contact with no front near it (``front_standoff`` None: a lever or a bar standing far off its part) is held on
+a bar whose section is the part's points within this distance of it, m (the affordance stage's
+``bar_fit_radius_m``); a section wider than twice this is not seen whole, and its fit is not believed."""
+BAR_FIT_INLIER_M = 0.005
+"""Points within this distance of the fitted circle are its inliers, m (the mesh's 5 mm grid)."""
+BAR_FIT_MIN_SHARE = 0.5
+"""At least this share of the section's points must lie on the circle for it to be a round bar."""
+BAR_FIT_MARGIN_M = 0.012
+"""The bar is at least its fitted circle's diameter less this, m: a fused surface lies up to 11.7 mm (in
+thickness) outside a true bar (``HandleShape.thickness_max``); on the three Meta-World twins, whose contacts have
+no front near them, the fits came 2.4 mm under to 3.8 mm over the true 109, 51 and 40 mm bars."""
+
+
+def bar_thickness_min(p_part: npt.ArrayLike, p_contact: npt.ArrayLike, handle_axis: npt.ArrayLike) -> float | None:
+    """The least thickness of a round bar held at a contact with no front near it, m; None if not told.
+
+    The part's points within ``BAR_FIT_RADIUS_M`` of the contact, flattened onto the plane across the handle
+    axis, are the bar's section; a circle is fitted to them (refitted on its inliers) and the bar is at least its
+    diameter less ``BAR_FIT_MARGIN_M``. Not told with too few points, a circle wider than the section that was
+    seen, one off the contact by more than its radius, or fewer than ``BAR_FIT_MIN_SHARE`` of the points on it.
+
+    Args:
+        p_part: (N, 3) points of the part at the state of the contact point.
+        p_contact: (3,) contact point (the bar's middle).
+        handle_axis: (3,) unit handle axis.
+    """
+    p_part = np.asarray(p_part, dtype=np.float64)
+    axis = np.asarray(handle_axis, dtype=np.float64)
+    relative = p_part - np.asarray(p_contact, dtype=np.float64)
+    relative = relative[np.linalg.norm(relative, axis=1) < BAR_FIT_RADIUS_M]
+    if len(relative) < MIN_HANDLE_POINTS:
+        return None
+    section = relative - np.outer(relative @ axis, axis)
+    weights = np.ones(len(section))
+    for _ in range(3):
+        centre, _, radius = fit_circles(section, weights)
+        on_circle = np.abs(np.linalg.norm(section - centre, axis=1) - radius) < BAR_FIT_INLIER_M
+        if int(on_circle.sum()) < MIN_HANDLE_POINTS:
+            return None
+        weights = on_circle.astype(np.float64)
+    radius = float(radius)
+    if radius > BAR_FIT_RADIUS_M or np.linalg.norm(centre) > radius or on_circle.mean() < BAR_FIT_MIN_SHARE:
+        return None
+    return max(2.0 * radius - BAR_FIT_MARGIN_M, 0.0)
+
+
+__all__ = ["BAR_FIT_MARGIN_M", "BAR_FIT_RADIUS_M", "BAR_MAX_WIDTH_M", "BAR_SHIFT_MIN_M", "BIN_M", "FRONT_SHARE", "KNOB_MAX_LENGTH_M", "MIN_HANDLE_POINTS", "PROUD_M", "HandleShape", "bar_thickness_min", "front_standoff", "measure_handle"]

@@ -58,6 +58,10 @@ class IKConfig:
     posture_cost_rolling_yaw: float = 0.005
     """The same for a differential-drive base's heading (the planner raises it to ``posture_cost_base`` for a
     telescoping arm, see ``plan``)."""
+    hold_line: bool = False
+    """Solve a pre-grasp pose again with a differential base held where it was placed (turning on the spot) when the
+    rolling solve left it off the line of its placed heading (``whole_body``); the planner sets it for a telescoping
+    arm, whose reach runs across that line (TIAGo's jointed arm lost 2 of 17 ground-truth parts with it)."""
     limit_margin: float = 0.05
     """Planned joint positions stay this far inside the position limits (room for the compliant controller
     to move the arm either way), rad or m."""

@@ -41,6 +41,7 @@ from funrec_robot.robot import RobotDescription, load_robot
 from funrec_robot.robot_geometry import RobotGeometry, measure_robot
 from funrec_robot.scene import (
     bodies_geoms,
+    hull_approximated,
     part_geoms,
     part_joint,
     part_sweep_footprint,
@@ -93,7 +94,8 @@ def _placement_problem(
     circles = geometry.base_circles + geometry.arm_circles
     z_band = (min(c.z_band[0] for c in circles), max(c.z_band[1] for c in circles))
     exclude = np.concatenate([bodies_geoms(model, robot_bodies(model)), part_geoms(model, joint)])
-    static = static_footprint(model, exclude, z_band, wrist[:, :2].mean(axis=0), config.footprint_radius)
+    static = static_footprint(model, exclude, z_band, wrist[:, :2].mean(axis=0), config.footprint_radius,
+                              standing=hull_approximated(model, joint))
     sweeps = []
     for b in range(bases):
         mine = states[(stretch == b) | (stretch == b + 1)]
@@ -408,6 +410,11 @@ def _search(
                                              geometry.fingertip_depth, config, unload)
         except GravityOverload as exc:
             errors.append((1, exc))
+            if geometry.lift_range is not None and exc.joint == robot.arm_joints[0]:
+                # A lift holds the weight above it and the part's pull on the hand in every posture, grasp and
+                # placement: nothing left to try (Stretch 3 tried them on plain_rev_oven_00's twin for the whole
+                # 10 s budget, each at 63.0-63.9 N of its lift's 70 N).
+                break
             if postures:  # the robot's next home posture may hold the gripper with less load on the wrist
                 robot = replace(robot, q_home=postures.pop(0))
                 pending.insert(0, (bases, rank, False, None, room))
@@ -639,7 +646,7 @@ def _plan_interaction(robot: RobotDescription, scene_xml: str | Path, task: Arti
         # base holds its planned heading as a holonomic base holds its pose, and rolls (Stretch 3 turned by up to
         # 2 rad as a door opened, drew its telescope in to the stop and missed the handle by 6-8 mm). An arm with
         # a shoulder that pans turns with its base cheaply (TIAGo follows a door round so).
-        config = replace(config, ik=replace(config.ik, posture_cost_rolling_yaw=config.ik.posture_cost_base))
+        config = replace(config, ik=replace(config.ik, posture_cost_rolling_yaw=config.ik.posture_cost_base, hold_line=True))
     handle = _handle_path(robot, model, joint, task, geometry, target, start, config)
     refusal = _floor_refusal(robot, model, joint, task, geometry, handle)
     if refusal is not None:

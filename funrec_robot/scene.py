@@ -23,6 +23,12 @@ from funrec_robot.sim_model import ROBOT_PREFIX
 
 FLOOR_TOP_M = 0.02
 """Geoms whose top is below this height are the floor: never obstacles for the base, m."""
+STANDING_BELOW_M = 1.8
+"""A twin's static piece whose bottom lies below this height is taken to stand on the floor when the base is placed,
+m: a capture sees the tops of a room (worktops, a wall above them) and often not what stands under them. The
+twin of light_harsh_rev_wall_00 holds nothing below 0.76 m, that of plain_pri_wardrobe_00 no side wall below
+0.79 m, and robots placed clear of what they hold stood in the true lower cabinets and wall at t = 0. Wall
+cabinets hang from 1.3-1.5 m over lower ones deeper than they are; ceilings lie higher (2.6 m on the bench)."""
 HANDLE_CONTAINS_M = 0.005
 """A geom is part of the handle if the contact point lies within this distance of its box, m."""
 HANDLE_ELONGATION = 2.0
@@ -179,11 +185,13 @@ def polygon_from_points(
 
 
 def _footprints(
-    corners: FloatArray, names: list[str], z_band: tuple[float, float]
+    corners: FloatArray, names: list[str], z_band: tuple[float, float], standing: bool = False
 ) -> list[Polygon]:
     out = []
     for corner, name in zip(corners, names):
         z_min, z_max = corner[:, 2].min(), corner[:, 2].max()
+        if standing and z_max >= FLOOR_TOP_M and z_min < STANDING_BELOW_M:
+            z_min = 0.0
         if z_max < max(z_band[0], FLOOR_TOP_M) or z_min > z_band[1]:
             continue
         out.append(polygon_from_points(name, corner[:, :2], (z_min, z_max)))
@@ -222,6 +230,7 @@ def static_footprint(
     centre_xy: npt.ArrayLike,
     radius: float,
     qpos: npt.ArrayLike | None = None,
+    standing: bool = False,
 ) -> tuple[Polygon, ...]:
     """Floor footprints of the scene's geoms near a point.
 
@@ -232,6 +241,8 @@ def static_footprint(
         centre_xy: (2,) centre of the region of interest, world, m.
         radius: geoms whose box lies entirely farther than this from the centre are dropped, m.
         qpos: model configuration to read the scene at (default the reference configuration).
+        standing: every geom whose bottom lies below ``STANDING_BELOW_M`` is taken to reach down to the floor
+            (a twin: what the capture saw of a room is the top of what stands under it).
 
     Returns:
         One convex polygon per kept geom (its box's projection).
@@ -245,7 +256,7 @@ def static_footprint(
     keep, centre, R, half = keep[near], centre[near], R[near], half[near]
     corners = box_corners(centre, R, half + POLYGON_INFLATE_M)
     names = [_name(model, mujoco.mjtObj.mjOBJ_GEOM, g) for g in keep]
-    return tuple(_footprints(corners, names, z_band))
+    return tuple(_footprints(corners, names, z_band, standing))
 
 
 def part_sweep_footprint(

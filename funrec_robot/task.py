@@ -76,6 +76,10 @@ class ArticulationTask:
     """At most this thick between the finger pads, m, when ``handle_width`` is unknown: measured on a twin's part
     mesh (``handle_geometry.HandleShape.thickness_max``); None if not told. A fixed jaw is placed off a handle
     that thick (``grasp.jaw_offset``) rather than off the thickest one expected."""
+    handle_width_min: float | None = None
+    """At least this thick between the finger pads at any tilt, m, when ``handle_width`` is unknown: a round bar
+    fitted on a twin's part mesh (``handle_geometry.bar_thickness_min``); None if not told. Jaws that open
+    narrower than that cannot take the handle (the planner refuses it)."""
     handle_depth: float | None = None
     """Extent of the handle along the approach, m (it crosses the pads when the grasp is tilted); None if
     unknown (taken equal to the width)."""

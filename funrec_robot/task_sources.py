@@ -21,7 +21,14 @@ from funrec.formats.ground_truth import GroundTruth, read_ground_truth
 from funrec.formats.twin import ArticulatedPart, read_articulation
 from funrec.typed import FloatArray
 from funrec_robot.errors import format_names
-from funrec_robot.handle_geometry import BIN_M, FRONT_SHARE, MIN_HANDLE_POINTS, PROUD_M, measure_handle
+from funrec_robot.handle_geometry import (
+    BIN_M,
+    FRONT_SHARE,
+    MIN_HANDLE_POINTS,
+    PROUD_M,
+    bar_thickness_min,
+    measure_handle,
+)
 from funrec_robot.scene import part_front, part_joint
 from funrec_robot.task import ArticulationTask
 
@@ -171,6 +178,27 @@ bench's handles stand 1.6-3.7 cm proud, Meta-World's drawer bar 18 cm: left to t
 MESH_HANDLE_RADIUS_M = 0.04
 """Without affordances, the handle is the mesh points proud of the front within this distance of its densest
 point, m: a knob (1.6-3.2 cm) whole, or a stretch of a bar."""
+
+
+LEVEL_BAR_MAX_TILT = np.deg2rad(30.0)
+"""A round bar whose axis lies within this of level is taken level (``_level_approach``), rad."""
+
+
+def _level_approach(approach: FloatArray, handle_axis: FloatArray) -> FloatArray:
+    """(3,) the approach onto a round bar that stands far off its part (no front near the contact), turned about the
+    bar's axis to level, on the side the hand came from: a round bar may be taken from any side, and is taken as the
+    hand takes a drawer's or a window's bar, into the part. The affordance's approach is the hand's own: from above
+    on the twins of mw_drawer_00 (51 degrees down) and mw_window_00 (38), where a drawer pulled level then drew the
+    bar along the jaws and out of them (funrec_mm 58 N, Spot 78 N; Fetch left it 3.4 cm short). Unchanged for a bar
+    more than ``LEVEL_BAR_MAX_TILT`` off level (the twin's z is up)."""
+    handle_axis = np.asarray(handle_axis, dtype=np.float64)
+    level = np.cross(np.array([0.0, 0.0, 1.0]), handle_axis)
+    if np.linalg.norm(level) < np.cos(LEVEL_BAR_MAX_TILT):
+        return approach
+    level /= np.linalg.norm(level)
+    level -= handle_axis * float(level @ handle_axis)
+    level /= np.linalg.norm(level)
+    return level if float(level @ approach) >= 0.0 else -level
 
 
 def _part_points(root: Path, joint: ArticulatedPart) -> FloatArray:
@@ -334,10 +362,15 @@ def task_from_twin(
         why += "; the grasp is on a handle the part mesh shows" if on_handle else "; the grasp is a guess on the part's front"
     # The handle's standoff from the part's front and its shape, measured on the part mesh around a contact
     # the hand made (not around one guessed on the front itself: the planner then assumes a standoff).
-    standoff, thickness_max = None, None
+    standoff, thickness_max, thickness_min = None, None, None
     if affordance is not None or on_handle:
-        shape = measure_handle(_part_points(root, joint), p_contact, approach, handle_axis)
+        p_part = _part_points(root, joint)
+        shape = measure_handle(p_part, p_contact, approach, handle_axis)
         standoff, thickness_max = shape.standoff, shape.thickness_max
+        if standoff is None and handle_axis is not None:  # no front near the contact: a bar standing far off it
+            thickness_min = bar_thickness_min(p_part, p_contact, handle_axis)
+            if thickness_min is not None:
+                approach = _level_approach(approach, handle_axis)
         if shape.is_knob and shape.p_centre is not None:
             p_contact, handle_axis, thickness_max = shape.p_centre, None, None
         elif shape.p_bar is not None and np.any(shape.p_bar != p_contact):
@@ -357,6 +390,7 @@ def task_from_twin(
         handle_axis_world=None if handle_axis is None else _transform_vector(T, handle_axis),
         surface_offset=standoff,
         handle_width_max=thickness_max,
+        handle_width_min=thickness_min,
         demo_times=demo_times,
         demo_states=demo_states,
         source=source,

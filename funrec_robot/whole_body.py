@@ -61,6 +61,37 @@ def posture_along(robot: RobotDescription, placement: BasePlacement, n: int) -> 
     return posture
 
 
+def _reached(e_pos: float, e_rot: float, config: PlanConfig) -> bool:
+    return e_pos <= config.track_position_tolerance and e_rot <= config.track_orientation_tolerance
+
+
+def _sideways(robot: RobotDescription, q_placed: FloatArray, q: FloatArray) -> float:
+    """How far a differential drive's base at ``q`` lies across the line of its heading at ``q_placed``, m (0 for a
+    base that does not turn: its x and y are its own)."""
+    if robot.drive != "differential" or set(robot.base_motions) != {"x", "y", "yaw"}:
+        return 0.0
+    k = {m: i for i, m in enumerate(robot.base_motions)}
+    yaw = float(q_placed[k["yaw"]])
+    return abs(-np.sin(yaw) * float(q[k["x"]] - q_placed[k["x"]]) + np.cos(yaw) * float(q[k["y"]] - q_placed[k["y"]]))
+
+
+def _from_grasp(robot: RobotDescription, posture: FloatArray, q_grasp: FloatArray) -> FloatArray:
+    """(N, nq) posture references along the handle path whose base starts where the grasp left it and reaches the
+    planned stops by the path's end: the base's offset from its planned pose at the grasp fades linearly along the
+    path. Pulled to the planned pose at the path's first target instead, the base of Fetch, which the approach had
+    left 19 cm off it, swept back 9 cm and its shoulder 0.22 rad round while the door turned 0.02 rad (the hand
+    held on the twin's handle, pressing on the true one: shoulder pan beyond its effort limit, 152 N on the handle,
+    person_sleeve_rev_cabinet_00)."""
+    nb = len(robot.base_joints)
+    offset = np.asarray(q_grasp[:nb], dtype=np.float64) - posture[0, :nb]
+    for k, motion in enumerate(robot.base_motions):
+        if motion == "yaw":
+            offset[k] = float(np.angle(np.exp(1j * offset[k])))
+    out = posture.copy()
+    out[:, :nb] += np.outer(np.linspace(1.0, 0.0, len(posture)), offset)
+    return out
+
+
 def whole_body_configurations(
     robot: RobotDescription,
     model: mujoco.MjModel,
@@ -108,12 +139,22 @@ def whole_body_configurations(
 
     scored = []
     # The hand's poses are solved with a differential drive free to roll along its heading (as along the handle
-    # path): a telescoping arm reaches sideways, and its base's roll is what moves the hand along the front.
+    # path): a telescoping arm reaches sideways, and its base's roll is what moves the hand along the front. For such
+    # an arm (``IKConfig.hold_line``), a pre-grasp pose whose base ended off the line of its placed heading is solved
+    # again with the base where it was placed (turning on the spot only), kept if reached: from home, rolling back
+    # and forth while it turned, Stretch 3's base shifted 4.8 cm sideways towards a drawer (as a car parks), the
+    # telescope then had 4.8 cm less to draw in than placed, and the IK missed the drawer's last centimetres by 6-16
+    # mm (5 twins).
     for flip in (False, True):
         # The hand's targets: the handle frames, off the handle along the closing axis for a fixed jaw.
         path = (frames @ FLIP if flip else frames) @ offset_frame(grasp.offset)
         T_pre = offset_along_approach(path[0], config.pregrasp_distance)
         q_pre, e_pos, e_rot = ik.solve(T_pre, q_start, posture[0], start_state, opening, unload=unload, rolling=True)
+        sideways = _sideways(robot, q_start, q_pre)
+        if config.ik.hold_line and sideways > config.track_position_tolerance and _reached(e_pos, e_rot, config):
+            q_held, e_held, r_held = ik.solve(T_pre, q_start, posture[0], start_state, opening, unload=unload, rolling=False)
+            if _reached(e_held, r_held, config):
+                q_pre, e_pos, e_rot = q_held, e_held, r_held
         score = e_pos + 0.1 * e_rot + 0.01 * float(np.linalg.norm(q_pre - q_start))
         scored.append((score, flip, path, q_pre, e_pos, e_rot))
     scored.sort(key=lambda item: item[0])
@@ -189,7 +230,7 @@ def _from_pregrasp(
         q_grasp = final_path[-1]
         approach[-1] = q_grasp
 
-    tracked = ik.track(path[1:], states[1:], q_grasp, posture[1:], holding, unload,
+    tracked = ik.track(path[1:], states[1:], q_grasp, _from_grasp(robot, posture[1:], q_grasp), holding, unload,
                        give_up=(config.track_position_tolerance, config.track_orientation_tolerance))
     worst = _worst_target(tracked.position_error, tracked.orientation_error, config)
     _require(tracked.position_error[worst], tracked.orientation_error[worst], config, "handle path", states[1 + worst], task)
@@ -203,7 +244,8 @@ def _from_pregrasp(
         raise GravityOverload(
             f"part '{task.part}': at the planned grasp {overload[0]} must hold {overload[1]:.1f} against gravity "
             "(the robot's and the part's on the hand), "
-            f"more than {config.gravity_effort_share:.0%} of its effort limit {overload[2]:.1f}"
+            f"more than {config.gravity_effort_share:.0%} of its effort limit {overload[2]:.1f}",
+            overload[0],
         )
     # The retreat only has to take the fingers off the handle: the IK's best effort is kept when it leaves
     # the handle ``min_retreat_clearance`` beyond the fingertips.

@@ -38,3 +38,34 @@ def test_a_true_part_is_refused_on_twins_only_when_every_twin_part_was_refused()
     assert _all_refused([("twin part_0: handle at 1.75 m; spot_arm reaches 0.00-1.60 m", True)])
     assert not _all_refused([("twin part_0: refused", True), ("twin part_1: base placement: no pose", False)])
     assert not _all_refused([])  # no twin part at all: the twin's failure, not the robot's refusal
+
+
+def test_an_unexpected_exception_fails_the_parts_of_its_case_only(tmp_path, monkeypatch, caplog) -> None:  # noqa: ANN001
+    """A bug in one part (an exception that is not a ``FunrecError``) used to end the whole bench run: it is now a
+    failure row naming the part and the error, for each part of its case not yet reported, and the next case runs."""
+    from types import SimpleNamespace
+
+    from funrec_robot import bench
+
+    for case in ("a_case", "b_case"):
+        (tmp_path / case / "gt").mkdir(parents=True)
+        (tmp_path / case / "gt" / "gt.json").write_text("{}")
+
+    def part(name: str) -> SimpleNamespace:
+        return SimpleNamespace(part=SimpleNamespace(name=name, joint_type="revolute"))
+
+    monkeypatch.setattr(bench, "read_ground_truth", lambda root: SimpleNamespace(extra={}, parts=[part("part_0"), part("part_1")]))
+    monkeypatch.setattr(bench, "load_robot", lambda path: None)
+
+    def rows(case, gt, *args):  # noqa: ANN001, ANN002, ANN202
+        yield _row(case, DEFAULT_FAMILY, True)
+        if case == "a_case":
+            raise ZeroDivisionError("division by zero")
+        yield BenchRow(case, "part_1", "revolute", True, True, "", 1.0, 1.0, 10.0, 0, 0.0, 1, 5.0)
+
+    monkeypatch.setattr(bench, "_ground_truth_rows", rows)
+    out = bench.bench_suite(tmp_path, "robot.yaml")
+    assert [(r.case, r.part, r.passed) for r in out] == [
+        ("a_case", "part_0", True), ("a_case", "part_1", False), ("b_case", "part_0", True), ("b_case", "part_1", True)]
+    assert out[1].failure == "unexpected error: ZeroDivisionError: division by zero" and not out[1].planned
+    assert "a_case: unexpected error: ZeroDivisionError" in caplog.text

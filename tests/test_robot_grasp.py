@@ -199,3 +199,44 @@ def test_a_handle_wider_than_the_jaws_is_refused_naming_its_thickness_and_the_ga
     assert ungraspable_reason(robot(replace(slides, open=0.03)), flat, config).startswith(
         "its bar (100 mm thick) fits between the jaws (60 mm open), but wherever it does"
     )
+
+
+def _round_bar(rng: np.random.Generator, diameter: float, noise: float = 0.002) -> np.ndarray:
+    """Surface points of a round bar along x through the origin, 0.3 m long, ``noise`` m of noise."""
+    angle, along = rng.uniform(0.0, 2.0 * np.pi, 20000), rng.uniform(-0.15, 0.15, 20000)
+    p = np.column_stack([along, diameter / 2 * np.cos(angle), diameter / 2 * np.sin(angle)])
+    return p + rng.normal(0.0, noise, p.shape)
+
+
+def test_a_twin_bar_far_off_its_front_is_told_at_least_its_fitted_diameter_less_the_margin() -> None:
+    """A twin's contact with no front near it (Meta-World's lever, 26 cm off the door) is held on a bar whose
+    section the part mesh shows: a circle fitted across the handle axis gives its diameter, and the bar is at
+    least that less ``BAR_FIT_MARGIN_M`` (12 mm). A 109 mm bar with 2 mm noise: 97 +- 3 mm; a 51 mm bar 39 +- 3 mm.
+    A flat front (no circle within the 6 cm fitted) or too few points: not told. The planner then refuses the
+    109 mm bar for jaws 85 mm open, naming the least thickness, and leaves the 51 mm one to be tried."""
+    from dataclasses import replace
+    from types import SimpleNamespace
+    from typing import cast
+
+    from funrec_robot.grasp import graspable_tilts, ungraspable_reason
+    from funrec_robot.handle_geometry import BAR_FIT_MARGIN_M, bar_thickness_min
+    from funrec_robot.robot import GripperDescription, RobotDescription
+
+    rng = np.random.default_rng(3)
+    axis = np.array([1.0, 0.0, 0.0])
+    for diameter in (0.109, 0.051):
+        measured = bar_thickness_min(_round_bar(rng, diameter), np.zeros(3), axis)
+        assert measured is not None and measured == pytest.approx(diameter - BAR_FIT_MARGIN_M, abs=0.003)
+    flat = np.column_stack([rng.uniform(-0.1, 0.1, 5000), np.full(5000, 0.03), rng.uniform(-0.1, 0.1, 5000)])
+    assert bar_thickness_min(flat, np.zeros(3), axis) is None
+    assert bar_thickness_min(_round_bar(rng, 0.109)[:10], np.zeros(3), axis) is None
+
+    slides = GripperDescription(joints=("left", "right"), actuator=None, open=0.0425, closed=0.0)
+    robot = cast(RobotDescription, SimpleNamespace(gripper=slides))
+    lever = replace(DOOR, surface_offset=None, handle_width=None, handle_width_min=0.095)
+    config = GraspConfig()
+    assert graspable_tilts(robot, lever, _one_jaw_geometry(), config) == []
+    assert ungraspable_reason(robot, lever, config) == (
+        "its bar is at least 95 mm thick at any tilt (a round bar fitted to the part's mesh), wider than the jaws open (85 mm)"
+    )
+    assert graspable_tilts(robot, replace(lever, handle_width_min=0.039), _one_jaw_geometry(), config) != []
