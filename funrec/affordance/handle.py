@@ -12,6 +12,7 @@ from scipy.spatial import cKDTree
 
 from funrec.affordance.types import AffordanceConfig
 from funrec.formats.twin import ArticulatedPart
+from funrec.geometry.fitting import fit_circles
 from funrec.geometry.transforms import make_transform
 from funrec.typed import BoolArray, FloatArray
 
@@ -114,29 +115,22 @@ def _bar_under_hand(p: FloatArray, c: FloatArray, config: AffordanceConfig) -> t
     if len(near) < config.min_handle_points:
         return None
     centre = near.mean(axis=0)
-    vectors = np.linalg.eigh((near - centre).T @ (near - centre))[1]
-    direction, across = vectors[:, 2], vectors[:, :2]
-    uv = (near - centre) @ across
-    m, radius = _circle(uv)
+    direction = np.linalg.eigh((near - centre).T @ (near - centre))[1][:, 2]
+    section = (near - centre) - np.outer((near - centre) @ direction, direction)
+    # Kasa's algebraic circle (no geometric refinement), as fit_circles does it for tracks
+    m, _, radius = fit_circles(section, np.ones(len(section)), refine_iterations=0)
     # Refitted on the points within the plane tolerance of the circle: the rim next to a drawer's
     # bar is in the fit radius too (it pulled the synthetic bar's axis 1 cm towards itself).
     for _ in range(_CIRCLE_REFITS):
-        on_circle = np.abs(np.linalg.norm(uv - m, axis=1) - radius) < config.plane_tolerance_m
+        on_circle = np.abs(np.linalg.norm(section - m, axis=1) - radius) < config.plane_tolerance_m
         if np.count_nonzero(on_circle) < config.min_handle_points:
             break
-        m, radius = _circle(uv[on_circle])
+        m, _, radius = fit_circles(section, on_circle.astype(np.float64), refine_iterations=0)
+    radius = float(radius)
     if not 0.0 < radius <= config.handle_max_height_m:
         return None
-    axis_point = centre + across @ m
+    axis_point = centre + m
     return axis_point + ((c - axis_point) @ direction) * direction, direction
-
-
-def _circle(uv: FloatArray) -> tuple[FloatArray, float]:
-    """Least-squares circle through (N, 2) points (Kasa: |uv - m|^2 = r^2 is linear in m and
-    r^2 - |m|^2): its centre (2,) and radius (0 when the fit is degenerate)."""
-    solution = np.linalg.lstsq(np.c_[2.0 * uv, np.ones(len(uv))], (uv**2).sum(axis=1), rcond=None)[0]
-    m = solution[:2]
-    return m, float(np.sqrt(max(solution[2] + m @ m, 0.0)))
 
 
 def front_plane(
