@@ -236,7 +236,7 @@ def _search(capture: Capture, trajectory: CameraTrajectory, joint_type: str, axi
         # held as tracked states, where depth does not object (the state within change_cost of the frame's best)
         frames, seen = (np.asarray(a) for a in seen_states)
         nearest = np.abs(grid[None, :] - seen[:, None]).argmin(axis=1)
-        agree = depth_only[frames, nearest] <= depth_only[frames].min(axis=1) + config.change_cost
+        agree = ~_depth_objects(depth_only[frames], nearest, config.change_cost)
         _hold(cost, grid, frames[agree], seen[agree], sigma)
         logger.info("depth states: %d of %d states seen by another cue held (depth objects to the rest)",
                     int(agree.sum()), len(frames))
@@ -263,12 +263,18 @@ def _rest_prefix(depth_only: FloatArray, seeing: BoolArray, canonical: int, rest
                  ) -> IntArray:
     """Frames (from 1) of the rest at the canonical grid state (see :func:`depth_states`' ``rest_frames``): those
     before the first frame at or after ``rest_frames`` whose depth objects to it, less the frames that object."""
-    objects = seeing & (depth_only[:, canonical] > depth_only.min(axis=1) + change_cost)
+    objects = seeing & _depth_objects(depth_only, np.full(len(depth_only), canonical), change_cost)
     objects[0] = False
     later = np.flatnonzero(objects[max(rest_frames, 1):])
     end = max(rest_frames, 1) + int(later[0]) if len(later) else len(objects)
     frames = np.arange(1, end)
     return frames[~objects[frames]]
+
+
+def _depth_objects(depth_only: FloatArray, columns: IntArray, change_cost: float) -> BoolArray:
+    """(F,) True where a frame's depth objects to its grid state ``columns[f]``: that state costs more than
+    ``change_cost`` above the frame's best (rows of ``depth_only`` (F, G), the depth term alone)."""
+    return depth_only[np.arange(len(depth_only)), columns] > depth_only.min(axis=1) + change_cost
 
 
 def _hold(cost: FloatArray, grid: FloatArray, frames: IntArray, states: FloatArray, sigma: float) -> None:
