@@ -297,7 +297,8 @@ def segment_parts(
         views.append(view)
         logger.debug("keyframe %d: %d part pixels (%d with depth evidence)", frames[j], int(view.part.sum()), int(part_px.sum()))
     # the depth references between the keyframes' part states also judge the model's places (see _place_votes)
-    witnesses = [reference for reference in references if reference.frame not in set(frames[key_index].tolist())]
+    keyframe_frames = set(frames[key_index].tolist())
+    witnesses = [reference for reference in references if reference.frame not in keyframe_frames]
     p_part = _vote_model(views, T_part_camera[key_index], trajectory.T_world_camera[frames[key_index]], K,
                          config, witnesses, K_small).astype(np.float32)
     if p_part.shape[1] == 0:
@@ -671,6 +672,7 @@ def _place_votes(views: list[_View], p_part: FloatArray, seen_as_part: BoolArray
     T_world_part_b = np.concatenate([T_world_part] + [w.T_world_part[None] for w in witnesses])
     T_part_world_b = invert_transform(T_world_part_b)
     T_camera_world_b = np.concatenate([invert_transform(T_world_camera)] + [w.T_camera_world[None] for w in witnesses])
+    p_world_camera_b = invert_transform(T_camera_world_b)[:, :3, 3:]  # camera centres, once for every pair (a, b)
     depth_b = [view.depth_m for view in views] + [w.depth_m for w in witnesses]
     K_b = [K] * Q + [K if K_witness is None else K_witness] * len(witnesses)
     T_part_world = T_part_world_b[:Q]
@@ -689,7 +691,7 @@ def _place_votes(views: list[_View], p_part: FloatArray, seen_as_part: BoolArray
             slides = _slides(T_b_a, p_a, config.depth_tolerance_m)
             if b >= Q and slides:
                 continue  # witnesses judge turns only (see above)
-            z = np.linalg.norm(p_a - invert_transform(T_camera_world_b[b])[:3, 3:], axis=0)
+            z = np.linalg.norm(p_a - p_world_camera_b[b], axis=0)
             away = np.linalg.norm(_apply(T_b_a, p_a) - p_a, axis=0)
             moved = away > 2 * depth_tolerance(z, config.depth_tolerance_m, config.depth_tolerance_range_m)
             if moved.any():
