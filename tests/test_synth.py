@@ -29,6 +29,7 @@ from funrec.synth import (
 from funrec.synth.scene import JOINT_TYPE_OF_KIND
 from funrec.synth.sensor import SensorNoise, noisy_depth
 from funrec.synth.sequence import is_complete, plan_sequence
+from funrec.synth.suite import families_suite, reseeded
 
 SELF_CHECK_TOL_M = 0.002
 """Median reprojection tolerance of the issue's self-check; exact depth is stored in 1 mm
@@ -133,6 +134,24 @@ def _check_plan(spec: SequenceSpec) -> None:
 @pytest.mark.parametrize("name", ["rev_fridge_01", "pri_drawer_02", "multi_same_00", "static_walk_00"])
 def test_planned_motion_keeps_the_part_in_view(name: str) -> None:
     _check_plan({s.name: s for s in bench_suite()}[name])
+
+
+def test_reseeded_suite_is_fresh_scenes_of_the_same_recipes() -> None:
+    # A held-out set: every family recipe with a seed no suite uses, and a name that says so.
+    suite = families_suite()
+    fresh = [reseeded(s, 2) for s in suite]
+    assert reseeded(suite[0], 0) is suite[0]
+    assert {s.seed for s in fresh}.isdisjoint(s.seed for s in suite)
+    assert len({s.seed for s in fresh}) == len(suite)
+    for old, new in zip(suite, fresh):
+        assert new.name == f"{old.name}_r2"
+        assert dataclasses.replace(new, name=old.name, seed=old.seed) == old
+    with pytest.raises(FunrecError, match="reseed"):
+        reseeded(suite[0], -1)
+    # A new seed moves the furniture: the planned motion of the first reseeded copy is not the original.
+    before, after = (plan_sequence(s, texture_px=32).motion.T_world_camera for s in (suite[0], fresh[0]))
+    assert not np.allclose(before, after)
+    _check_plan(fresh[0])
 
 
 @pytest.mark.slow
@@ -244,7 +263,9 @@ def test_generate_suite_skips_complete_sequences(
 
     calls: list[str] = []
     monkeypatch.setitem(suite.SUITES, "unit", lambda: (tiny_spec(0), tiny_spec(4)))
-    monkeypatch.setattr(suite, "generate_sequence", lambda spec, out, progress=None, scenes_only=False: calls.append(spec.name))
+    monkeypatch.setattr(
+        suite, "generate_sequence", lambda spec, out, progress=None, scenes_only=False: calls.append(spec.name)
+    )
     paths = generate_suite(tiny_capture.parent, "unit")
     assert calls == ["tiny_04"] and paths == [tiny_capture, tiny_capture.parent / "tiny_04"]
     (tmp_path / "tiny_00").mkdir()
@@ -434,7 +455,9 @@ def test_depth_holes_at_edges_and_out_of_range() -> None:
     assert edge_holes > 0.5 and elsewhere < 0.02
 
 
-def test_part_depth_self_test_passes_and_catches_depth_that_is_not_the_part(exact_capture: Path, tmp_path: Path) -> None:
+def test_part_depth_self_test_passes_and_catches_depth_that_is_not_the_part(
+    exact_capture: Path, tmp_path: Path
+) -> None:
     import shutil
 
     import cv2
@@ -472,7 +495,9 @@ def test_bench_families_plain_has_12_and_half_without_hand_masks() -> None:
         families = {s.family for s in make()}
         assert families == {"textured" if suite == "bench" else suite}
     person = {(s.arm, s.joint_speed) for s in FAMILY_SUITES["person"]()}
-    assert {"sleeve", "elbow"} <= {arm for arm, _ in person} and min(v for _, v in person) < 1 < max(v for _, v in person)
+    assert {"sleeve", "elbow"} <= {arm for arm, _ in person} and min(v for _, v in person) < 1 < max(
+        v for _, v in person
+    )
     assert {"dim", "harsh", "window", "changing"} <= {s.lighting for s in FAMILY_SUITES["lighting"]()}
     assert {"angled", "island"} <= {s.layout for s in FAMILY_SUITES["geometry"]()}
     with pytest.raises(ValueError, match="unknown lighting"):
@@ -573,8 +598,14 @@ def test_changing_light_switches_one_light_and_other_set_ups_keep_theirs() -> No
 def test_turned_and_free_rows_keep_the_walk_area_in_front_of_every_front(arrangement: str) -> None:
     for seed in range(3):
         spec = SequenceSpec(
-            f"geo_{seed}", 900 + seed, "kitchen", (PartRequest("door"),), (Interaction(0, (0.9,)),), 120,
-            layout=arrangement, appearance="plain",
+            f"geo_{seed}",
+            900 + seed,
+            "kitchen",
+            (PartRequest("door"),),
+            (Interaction(0, (0.9,)),),
+            120,
+            layout=arrangement,
+            appearance="plain",
         )
         plan = plan_sequence(spec, texture_px=32)
         y_max = plan.scene.walk_area[3]
