@@ -66,9 +66,7 @@ def _print_summary(summary: Any) -> None:
     for f in summary.fragments:
         if f.kind == "dynamic" and f.part is None:
             print(f"  scene change in frames {f.first}-{f.last} gave no part: {f.reason}")
-    print(
-        f"  {summary.frame_count} frames in {total:.1f} s ({summary.frame_count / max(total, 1e-9):.1f} frames/s): {timings}"
-    )
+    print(f"  {summary.frame_count} frames in {total:.1f} s ({summary.frame_count / max(total, 1e-9):.1f} frames/s): {timings}")
     if summary.untracked_frames:
         print(f"  {summary.untracked_frames} frame(s) could not be registered; their camera poses are interpolated")
 
@@ -138,11 +136,7 @@ def _cmd_synth(args: argparse.Namespace) -> int:
         return 0
     with progress_bar(f"suite {args.suite}") as progress:
         paths = synth.generate_suite(
-            args.output,
-            suite=args.suite,
-            only=args.only or None,
-            progress=progress,
-            scenes_only=args.scenes_only,
+            args.output, suite=args.suite, only=args.only or None, progress=progress, scenes_only=args.scenes_only,
             reseed=args.reseed,
         )
     print(f"{len(paths)} sequences in {args.output} ({time.perf_counter() - start:.0f} s)")
@@ -241,21 +235,12 @@ def _add_export(sub: Any, selected: bool) -> None:
     )
     p.add_argument("twin", type=Path, help="twin folder (holds articulation.json and meshes/)")
     p.add_argument("--config", type=Path, help="JSON or YAML file of ExportConfig fields (unknown keys are errors)")
-    p.add_argument(
-        "--rerun",
-        type=Path,
-        metavar="FILE.rrd",
-        help="also write a rerun recording (pip install funrec[rerun]): RGB-D frames with part and hand "
-        "masks, camera path, posed part meshes, joint states, contact point and grasp frame",
-    )
-    p.add_argument(
-        "--capture",
-        type=Path,
-        help="capture folder whose frames go into --rerun (default: the one the twin's config.json names)",
-    )
-    p.add_argument(
-        "--rerun-only", action="store_true", help="write only the --rerun recording, not the simulator files"
-    )
+    p.add_argument("--rerun", type=Path, metavar="FILE.rrd",
+                   help="also write a rerun recording (pip install funrec[rerun]): RGB-D frames with part and hand "
+                   "masks, camera path, posed part meshes, joint states, contact point and grasp frame")
+    p.add_argument("--capture", type=Path,
+                   help="capture folder whose frames go into --rerun (default: the one the twin's config.json names)")
+    p.add_argument("--rerun-only", action="store_true", help="write only the --rerun recording, not the simulator files")
     _add_config_options(p, selected, "funrec.export.simulation", "ExportConfig")
     p.set_defaults(handler=_cmd_export)
 
@@ -302,12 +287,7 @@ def _add_query(sub: Any, selected: bool) -> None:
     )
     p.add_argument("twin", type=Path, help="twin folder (holds articulation.json and affordances.json)")
     p.add_argument("--part", metavar="NAME", help="part name, as in articulation.json (e.g. part_0)")
-    p.add_argument(
-        "--state",
-        type=float,
-        metavar="S",
-        help="joint state from the canonical state, rad or m, within the part's range (default 0)",
-    )
+    p.add_argument("--state", type=float, metavar="S", help="joint state from the canonical state, rad or m, within the part's range (default 0)")
     p.add_argument("--json", action="store_true", help="print JSON instead of text")
     p.set_defaults(handler=_cmd_query)
 
@@ -316,14 +296,9 @@ def _cmd_view(args: argparse.Namespace) -> int:
     from funrec.config import config_from_args
     from funrec.view import ViewConfig, serve_twin
 
-    serve_twin(
-        args.twin,
-        args.host,
-        args.port,
-        config_from_args(ViewConfig, args),
-        on_ready=lambda url: print(f"viewing {args.twin} at {url} (Ctrl+C to stop)", flush=True),
-        capture_dir=args.capture,
-    )
+    serve_twin(args.twin, args.host, args.port, config_from_args(ViewConfig, args),
+               on_ready=lambda url: print(f"viewing {args.twin} at {url} (Ctrl+C to stop)", flush=True),
+               capture_dir=args.capture)
     return 0
 
 
@@ -336,16 +311,11 @@ def _add_view(sub: Any, selected: bool) -> None:
         "a slider per joint, and layers to toggle (camera path, frustums drawn as lines, contacts and grasp frames, "
         "hands). Runs until Ctrl+C.",
     )
-    p.add_argument(
-        "--capture",
-        type=Path,
-        help="capture folder of the twin, for hand points and true frustums (default: from config.json)",
-    )
+    p.add_argument("--capture", type=Path,
+                   help="capture folder of the twin, for hand points and true frustums (default: from config.json)")
     p.add_argument("twin", type=Path, help="twin folder (holds articulation.json and meshes/)")
     p.add_argument("--port", type=int, default=8080, help="port of the web viewer (default: 8080)")
-    p.add_argument(
-        "--host", default="127.0.0.1", help="address to listen on (default: 127.0.0.1; 0.0.0.0 for other machines)"
-    )
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default: 127.0.0.1; 0.0.0.0 for other machines)")
     _add_config_options(p, selected, "funrec.view", "ViewConfig")
     p.set_defaults(handler=_cmd_view)
 
@@ -415,14 +385,10 @@ def _add_synth(sub: Any, selected: bool) -> None:
         help="write only each sequence's gt/ scene (scene.xml, textures, camera poses, gt.json; no frames, masks or "
         "points): the true scenes `funrec-robot bench` plans in, in seconds",
     )
-    p.add_argument(
-        "--reseed",
-        type=int,
-        default=0,
-        metavar="K",
-        help="K > 0: fresh scenes of the suite's recipes (new layout, materials, camera and hand paths; "
-        "sequences named NAME_rK), a held-out set to check a change on scenes nobody tuned on (default: 0, the suite as named)",
-    )
+    p.add_argument("--reseed", type=int, default=0, metavar="K",
+                   help="K > 0: fresh scenes of the suite's recipes (new layout, materials, camera and hand paths; "
+                   "sequences named NAME_rK), a held-out set to check a change on scenes nobody tuned on "
+                   "(default: 0, the suite as named)")
     p.add_argument("--tiny", action="store_true", help="instead of a suite, one tiny low-resolution sequence")
     p.add_argument("--seed", type=int, default=0, help="seed of the --tiny sequence (default: 0)")
     p.set_defaults(handler=_cmd_synth)
@@ -462,9 +428,7 @@ def _add_bench(sub: Any, selected: bool) -> None:
         "the paper's tables. Writes report.json and report.md.",
     )
     p.add_argument("--suite-dir", type=Path, default=Path("bench_suite"), help="suite folder (default: bench_suite)")
-    p.add_argument(
-        "-o", "--output", type=Path, default=Path("bench_report"), help="report folder (default: bench_report)"
-    )
+    p.add_argument("-o", "--output", type=Path, default=Path("bench_report"), help="report folder (default: bench_report)")
     p.add_argument("--only", nargs="+", metavar="NAME", help="run only these sequences")
     _add_config_options(p, selected, "funrec.bench.run", "BenchConfig")
     p.set_defaults(handler=_cmd_bench)
@@ -485,20 +449,11 @@ def _add_reconstruct(sub: Any, selected: bool) -> None:
     p.add_argument("capture", type=Path, nargs="?", metavar="CAPTURE", help="capture folder (FORMATS.md section 1)")
     p.add_argument("-o", "--output", type=Path, help="twin folder to write (required)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing twin folder")
-    p.add_argument(
-        "--config", type=Path, help="JSON or YAML file of ReconstructConfig fields (unknown keys are errors)"
-    )
-    p.add_argument(
-        "--print-config",
-        action="store_true",
-        help="print the full config (defaults, --config file and flags applied) as JSON and exit",
-    )
-    p.add_argument(
-        "--rerun",
-        type=Path,
-        metavar="FILE.rrd",
-        help="also write a rerun recording of the twin and the capture (pip install funrec[rerun])",
-    )
+    p.add_argument("--config", type=Path, help="JSON or YAML file of ReconstructConfig fields (unknown keys are errors)")
+    p.add_argument("--print-config", action="store_true",
+                   help="print the full config (defaults, --config file and flags applied) as JSON and exit")
+    p.add_argument("--rerun", type=Path, metavar="FILE.rrd",
+                   help="also write a rerun recording of the twin and the capture (pip install funrec[rerun])")
     _add_config_options(p, selected, "funrec.pipeline", "ReconstructConfig", RECONSTRUCT_COMMON)
     p.set_defaults(parser=p)
     p.set_defaults(handler=_cmd_reconstruct)
@@ -511,9 +466,7 @@ def _add_demo(sub: Any, selected: bool) -> None:
         description="The main job on a built-in example: render one sequence of the smoke suite, reconstruct "
         "its twin and score it against the ground truth.",
     )
-    p.add_argument(
-        "-o", "--output", type=Path, default=Path("demo_output"), help="output folder (default: demo_output)"
-    )
+    p.add_argument("-o", "--output", type=Path, default=Path("demo_output"), help="output folder (default: demo_output)")
     p.add_argument("--sequence", default="smoke_rev_00", help="smoke-suite sequence to use (default: smoke_rev_00)")
     p.set_defaults(handler=_cmd_demo)
 

@@ -148,7 +148,7 @@ def test_reseeded_suite_is_fresh_scenes_of_the_same_recipes() -> None:
         assert dataclasses.replace(new, name=old.name, seed=old.seed) == old
     with pytest.raises(FunrecError, match="reseed"):
         reseeded(suite[0], -1)
-    # A new seed moves the furniture: the planned motion of the first reseeded copy is not the original.
+    # A new seed moves the furniture and the camera: the planned motion of the first copy is not the original's.
     before, after = (plan_sequence(s, texture_px=32).motion.T_world_camera for s in (suite[0], fresh[0]))
     assert not np.allclose(before, after)
     _check_plan(fresh[0])
@@ -263,9 +263,7 @@ def test_generate_suite_skips_complete_sequences(
 
     calls: list[str] = []
     monkeypatch.setitem(suite.SUITES, "unit", lambda: (tiny_spec(0), tiny_spec(4)))
-    monkeypatch.setattr(
-        suite, "generate_sequence", lambda spec, out, progress=None, scenes_only=False: calls.append(spec.name)
-    )
+    monkeypatch.setattr(suite, "generate_sequence", lambda spec, out, progress=None, scenes_only=False: calls.append(spec.name))
     paths = generate_suite(tiny_capture.parent, "unit")
     assert calls == ["tiny_04"] and paths == [tiny_capture, tiny_capture.parent / "tiny_04"]
     (tmp_path / "tiny_00").mkdir()
@@ -455,9 +453,7 @@ def test_depth_holes_at_edges_and_out_of_range() -> None:
     assert edge_holes > 0.5 and elsewhere < 0.02
 
 
-def test_part_depth_self_test_passes_and_catches_depth_that_is_not_the_part(
-    exact_capture: Path, tmp_path: Path
-) -> None:
+def test_part_depth_self_test_passes_and_catches_depth_that_is_not_the_part(exact_capture: Path, tmp_path: Path) -> None:
     import shutil
 
     import cv2
@@ -495,9 +491,7 @@ def test_bench_families_plain_has_12_and_half_without_hand_masks() -> None:
         families = {s.family for s in make()}
         assert families == {"textured" if suite == "bench" else suite}
     person = {(s.arm, s.joint_speed) for s in FAMILY_SUITES["person"]()}
-    assert {"sleeve", "elbow"} <= {arm for arm, _ in person} and min(v for _, v in person) < 1 < max(
-        v for _, v in person
-    )
+    assert {"sleeve", "elbow"} <= {arm for arm, _ in person} and min(v for _, v in person) < 1 < max(v for _, v in person)
     assert {"dim", "harsh", "window", "changing"} <= {s.lighting for s in FAMILY_SUITES["lighting"]()}
     assert {"angled", "island"} <= {s.layout for s in FAMILY_SUITES["geometry"]()}
     with pytest.raises(ValueError, match="unknown lighting"):
@@ -598,14 +592,8 @@ def test_changing_light_switches_one_light_and_other_set_ups_keep_theirs() -> No
 def test_turned_and_free_rows_keep_the_walk_area_in_front_of_every_front(arrangement: str) -> None:
     for seed in range(3):
         spec = SequenceSpec(
-            f"geo_{seed}",
-            900 + seed,
-            "kitchen",
-            (PartRequest("door"),),
-            (Interaction(0, (0.9,)),),
-            120,
-            layout=arrangement,
-            appearance="plain",
+            f"geo_{seed}", 900 + seed, "kitchen", (PartRequest("door"),), (Interaction(0, (0.9,)),), 120,
+            layout=arrangement, appearance="plain",
         )
         plan = plan_sequence(spec, texture_px=32)
         y_max = plan.scene.walk_area[3]

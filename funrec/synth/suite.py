@@ -141,36 +141,12 @@ def lighting_suite() -> tuple[SequenceSpec, ...]:
 
     return (
         _single("light_dim_rev_cabinet_00", 8001, "kitchen", PartRequest("door", "right"), 130, True, **lit("dim")),
-        _single(
-            "light_dim_pri_drawer_00", 8002, "kitchen", PartRequest("drawer", level="middle"), 120, False, **lit("dim")
-        ),
-        _single(
-            "light_harsh_rev_wall_00", 8003, "kitchen", PartRequest("wall_door", "left"), 140, True, **lit("harsh")
-        ),
-        _single(
-            "light_harsh_rev_dishwasher_00", 8004, "kitchen", PartRequest("dishwasher_door"), 150, False, **lit("harsh")
-        ),
-        _single(
-            "light_window_rev_fridge_00",
-            8005,
-            "kitchen",
-            PartRequest("fridge_door", "left"),
-            160,
-            True,
-            **lit("window"),
-        ),
-        _single(
-            "light_window_pri_drawer_00",
-            8006,
-            "bedroom",
-            PartRequest("drawer", level="top"),
-            120,
-            False,
-            **lit("window"),
-        ),
-        _single(
-            "light_changing_rev_cabinet_00", 8007, "kitchen", PartRequest("door", "left"), 140, True, **lit("changing")
-        ),
+        _single("light_dim_pri_drawer_00", 8002, "kitchen", PartRequest("drawer", level="middle"), 120, False, **lit("dim")),
+        _single("light_harsh_rev_wall_00", 8003, "kitchen", PartRequest("wall_door", "left"), 140, True, **lit("harsh")),
+        _single("light_harsh_rev_dishwasher_00", 8004, "kitchen", PartRequest("dishwasher_door"), 150, False, **lit("harsh")),
+        _single("light_window_rev_fridge_00", 8005, "kitchen", PartRequest("fridge_door", "left"), 160, True, **lit("window")),
+        _single("light_window_pri_drawer_00", 8006, "bedroom", PartRequest("drawer", level="top"), 120, False, **lit("window")),
+        _single("light_changing_rev_cabinet_00", 8007, "kitchen", PartRequest("door", "left"), 140, True, **lit("changing")),
         SequenceSpec("light_changing_static_00", 8008, "kitchen", (), (), 100, hand_masks=False, **lit("changing")),
     )
 
@@ -185,45 +161,13 @@ def geometry_suite() -> tuple[SequenceSpec, ...]:
         return {"family": "geometry", "appearance": "plain", "layout": layout}
 
     return (
-        _single(
-            "geo_angled_rev_cabinet_00", 9001, "kitchen", PartRequest("door", "left"), 140, True, **shaped("angled")
-        ),
-        _single(
-            "geo_angled_pri_drawer_00",
-            9002,
-            "kitchen",
-            PartRequest("drawer", level="top"),
-            130,
-            False,
-            **shaped("angled"),
-        ),
-        _single(
-            "geo_angled_rev_wall_00", 9003, "kitchen", PartRequest("wall_door", "right"), 140, True, **shaped("angled")
-        ),
-        _single(
-            "geo_island_rev_cabinet_00", 9004, "kitchen", PartRequest("door", "right"), 140, False, **shaped("island")
-        ),
-        _single(
-            "geo_island_pri_drawer_00",
-            9005,
-            "kitchen",
-            PartRequest("drawer", level="bottom"),
-            130,
-            True,
-            **shaped("island"),
-        ),
-        _single(
-            "geo_island_rev_wall_00",
-            9006,
-            "kitchen",
-            PartRequest("wall_double_door", "left"),
-            150,
-            False,
-            **shaped("island"),
-        ),
-        _single(
-            "geo_angled_rev_microwave_00", 9007, "kitchen", PartRequest("microwave_door"), 130, True, **shaped("angled")
-        ),
+        _single("geo_angled_rev_cabinet_00", 9001, "kitchen", PartRequest("door", "left"), 140, True, **shaped("angled")),
+        _single("geo_angled_pri_drawer_00", 9002, "kitchen", PartRequest("drawer", level="top"), 130, False, **shaped("angled")),
+        _single("geo_angled_rev_wall_00", 9003, "kitchen", PartRequest("wall_door", "right"), 140, True, **shaped("angled")),
+        _single("geo_island_rev_cabinet_00", 9004, "kitchen", PartRequest("door", "right"), 140, False, **shaped("island")),
+        _single("geo_island_pri_drawer_00", 9005, "kitchen", PartRequest("drawer", level="bottom"), 130, True, **shaped("island")),
+        _single("geo_island_rev_wall_00", 9006, "kitchen", PartRequest("wall_double_door", "left"), 150, False, **shaped("island")),
+        _single("geo_angled_rev_microwave_00", 9007, "kitchen", PartRequest("microwave_door"), 130, True, **shaped("angled")),
         _single("geo_island_rev_oven_00", 9008, "kitchen", PartRequest("oven_door"), 150, False, **shaped("island")),
     )
 
@@ -237,67 +181,17 @@ def person_suite() -> tuple[SequenceSpec, ...]:
         return {"family": "person", "appearance": "plain", "arm": arm, "joint_speed": speed}
 
     return (
+        _single("person_sleeve_rev_cabinet_00", 10001, "kitchen", PartRequest("door", "left"), 130, False, **by("sleeve")),
+        _single("person_sleeve_pri_drawer_00", 10002, "kitchen", PartRequest("drawer", level="top"), 120, True, **by("sleeve")),
+        _single("person_elbow_rev_wall_00", 10003, "kitchen", PartRequest("wall_door", "right"), 140, False, **by("elbow")),
+        _single("person_elbow_pri_wardrobe_00", 10004, "bedroom", PartRequest("sliding_door", "left"), 150, True, **by("elbow")),
+        _single("person_slow_rev_cabinet_00", 10005, "kitchen", PartRequest("door", "right"), 200, False, **by("sleeve", 0.4)),
+        _single("person_fast_rev_fridge_00", 10006, "kitchen", PartRequest("fridge_door", "left"), 120, True, **by("elbow", 2.2)),
         _single(
-            "person_sleeve_rev_cabinet_00", 10001, "kitchen", PartRequest("door", "left"), 130, False, **by("sleeve")
+            "person_partial_rev_cabinet_00", 10007, "kitchen", PartRequest("door", "left"), 130, False, (0.25,), **by("sleeve")
         ),
         _single(
-            "person_sleeve_pri_drawer_00",
-            10002,
-            "kitchen",
-            PartRequest("drawer", level="top"),
-            120,
-            True,
-            **by("sleeve"),
-        ),
-        _single(
-            "person_elbow_rev_wall_00", 10003, "kitchen", PartRequest("wall_door", "right"), 140, False, **by("elbow")
-        ),
-        _single(
-            "person_elbow_pri_wardrobe_00",
-            10004,
-            "bedroom",
-            PartRequest("sliding_door", "left"),
-            150,
-            True,
-            **by("elbow"),
-        ),
-        _single(
-            "person_slow_rev_cabinet_00",
-            10005,
-            "kitchen",
-            PartRequest("door", "right"),
-            200,
-            False,
-            **by("sleeve", 0.4),
-        ),
-        _single(
-            "person_fast_rev_fridge_00",
-            10006,
-            "kitchen",
-            PartRequest("fridge_door", "left"),
-            120,
-            True,
-            **by("elbow", 2.2),
-        ),
-        _single(
-            "person_partial_rev_cabinet_00",
-            10007,
-            "kitchen",
-            PartRequest("door", "left"),
-            130,
-            False,
-            (0.25,),
-            **by("sleeve"),
-        ),
-        _single(
-            "person_partial_pri_drawer_00",
-            10008,
-            "kitchen",
-            PartRequest("drawer", level="middle"),
-            120,
-            True,
-            (0.45,),
-            **by("proxy"),
+            "person_partial_pri_drawer_00", 10008, "kitchen", PartRequest("drawer", level="middle"), 120, True, (0.45,), **by("proxy")
         ),
     )
 
@@ -370,7 +264,7 @@ RESEED_STRIDE = 1_000_003
 
 def reseeded(spec: SequenceSpec, reseed: int) -> SequenceSpec:
     """``spec`` with a fresh seed: the same family, part, interaction and length, but a new room
-    layout, materials, camera path and hand path. Named ``<name>_r<reseed>``. ``reseed`` 0 is ``spec``."""
+    layout, materials, camera and hand paths. Named ``<name>_r<reseed>``; ``reseed`` 0 is ``spec``."""
     if reseed < 0:
         raise FunrecError(f"reseed must be 0 or positive, got {reseed}")
     if reseed == 0:
