@@ -179,6 +179,30 @@ def test_without_pose_graph_no_loop_is_closed(scenes, monkeypatch):
     assert rmse < 0.01 and rot_deg < 0.5, (rmse, rot_deg)
 
 
+def test_depth_closes_the_loops_that_orb_cannot(scenes, monkeypatch):
+    """Plain and dark views give ORB too few matches for a loop closure; the keyframes' depth closes
+    them. Simulated: ORB never matches and every corner pose is 3 mm off along the camera's x axis,
+    so the chain of keyframes (one per 3 cm of motion) drifts. Measured: 4.7 cm of ATE without
+    depth closures, 0.8 cm with them (53 of 75 tried accepted)."""
+    scene, root = scenes["plain"]
+    monkeypatch.setattr(tracking, "_register_orb", lambda *args, **kwargs: None)
+    corners_pose = tracking._refine
+
+    def biased(*args, **kwargs):
+        T = corners_pose(*args, **kwargs).copy()
+        T[0, 3] += 0.003
+        return T
+
+    monkeypatch.setattr(tracking, "_refine", biased)
+    ate = {}
+    for closures in (False, True):
+        config = TrackingConfig(depth_loop_closures=closures, keyframe_max_translation_m=0.03)
+        trajectory = track_camera(load_capture(root), config)
+        ate[closures] = ate_m(trajectory.T_world_camera, scene.T_world_camera)[0]
+    assert ate[False] > 0.03, ate  # the drift is there to correct
+    assert ate[True] < 0.015 and ate[True] < ate[False] / 3, ate
+
+
 def _covered(scene: Scene, root: Path, tmp_path: Path) -> Path:
     """The scene with frames 14-16 black (lens covered; depth still recorded)."""
     covered = tmp_path / "covered"

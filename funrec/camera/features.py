@@ -64,6 +64,7 @@ def track_klt(
     window_px: int,
     pyramid_levels: int,
     max_forward_backward_px: float,
+    uv1_guess: FloatArray | None = None,
 ) -> tuple[FloatArray, BoolArray]:
     """Pyramidal Lucas-Kanade flow with a forward-backward consistency check.
 
@@ -74,6 +75,8 @@ def track_klt(
         pyramid_levels: number of coarser pyramid levels (0 = single scale).
         max_forward_backward_px: a point whose round trip 0 -> 1 -> 0 misses its start by
             more than this is rejected (occlusion, sliding along an edge).
+        uv1_guess: (N, 2) where each point is expected in frame 1 (the search starts there and
+            the backward pass at the found position); None: where it was in frame 0.
 
     Returns:
         uv1: (N, 2) positions in frame 1 (meaningless where not ok).
@@ -88,7 +91,11 @@ def track_klt(
         "maxLevel": pyramid_levels,
         "criteria": (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03),
     }
-    p1, status1, _ = cv2.calcOpticalFlowPyrLK(gray0, gray1, p0, None, **params)
+    if uv1_guess is None:
+        p1, status1, _ = cv2.calcOpticalFlowPyrLK(gray0, gray1, p0, None, **params)
+    else:
+        guess = uv1_guess.astype(np.float32).reshape(-1, 1, 2)
+        p1, status1, _ = cv2.calcOpticalFlowPyrLK(gray0, gray1, p0, guess, flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **params)
     p0_back, status0, _ = cv2.calcOpticalFlowPyrLK(gray1, gray0, p1, None, **params)
     uv1 = p1.reshape(-1, 2).astype(np.float64)
     round_trip = np.linalg.norm(p0_back.reshape(-1, 2) - uv0, axis=1)
