@@ -32,12 +32,14 @@ CUES_ABLATIONS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("no hand masks, no hands first", ("--no-use-hand-masks", "--no-hands-first")),
     ("no change left out of depth registration", ("--tracking-depth-odometry-changed-min-fraction", "0")),
     ("no arrived surfaces in the state search", ("--depth-proposal-arrival-points", "0")),
+    ("no depth loop closures", ("--no-tracking-depth-loop-closures",)),
 )
 """The ablation set "cues": what each texture-independent cue buys (issue 12): depth registration
 where camera tracking has too few corners, parts proposed from depth where tracks give none (and
 challenging the tracks' part where they give one), the joint type decided in depth, hands detected before the parts,
 the dense-flow track cue (off by default, on here), the changed regions (a turning door) left out of a second
-depth registration, and the surfaces that arrived in front of a span's first frame scored in its state search."""
+depth registration, the surfaces that arrived in front of a span's first frame scored in its state search, and
+the keyframes' depth closing the camera's loops where ORB cannot."""
 ABLATION_SETS: dict[str, tuple[tuple[str, tuple[str, ...]], ...]] = {
     "none": (), "standard": STANDARD_ABLATIONS, "cues": CUES_ABLATIONS, "all": STANDARD_ABLATIONS + CUES_ABLATIONS}
 """Named ablation sets selectable with BenchConfig.ablation_set."""
@@ -65,7 +67,7 @@ class BenchConfig:
     camera pose graph, no joint-constrained part motion, no track re-seeding, no hand masks),
     "cues" (no depth in camera tracking, no depth proposals, no depth challenge, no joint type in
     depth, no hands first, dense flow on, neither hand masks nor hands first, no change left out of
-    depth registration, no arrived surfaces in the state search) or "all" (both)."""
+    depth registration, no arrived surfaces in the state search, no depth loop closures) or "all" (both)."""
     ablation_sequences: str | None = None
     """Comma-separated sequence names the ablations run on (None: every sequence); the ablation
     table then compares them with the full method on the same sequences."""
