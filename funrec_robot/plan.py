@@ -27,6 +27,7 @@ from funrec_robot.feasibility import (
     falls_to,
     first_blocked_state,
     holding_load,
+    joint_loads,
     resting_force,
     resting_state,
 )
@@ -253,6 +254,16 @@ def _requested_states(
         target_state = float(np.clip(target_state, low + margin, high - margin))
     if abs(target_state - start_state) < 1e-6:
         raise PlanningError(f"part '{task.part}' is already at the target state {target_state:.4g} {task.unit}")
+    step = config.free_range_step if task.joint_type == "revolute" else config.free_range_step_m
+    if falls_to(model, joint, target_state, start_state, step):
+        # Gravity beats the joint's friction everywhere back to the start: let go at the target, the part returns
+        # (a 5 kg sash on a frictionless slide, mw_window_01: every robot that lifted it saw it fall shut).
+        load = float(np.abs(joint_loads(model, joint, np.array([target_state]))[0]))
+        raise Refusal(
+            f"part '{task.part}' does not stay at {target_state:.3f} {task.unit}: its weight ({load:.1f} "
+            f"{'N m' if task.joint_type == 'revolute' else 'N'}, beyond its joint's friction) carries it back to "
+            f"{start_state:.3f} {task.unit} once let go"
+        )
     demo = isinstance(target, str) and target.strip().lower() == "demo"
     if demo:
         states = _demo_states(task, start_state, config)

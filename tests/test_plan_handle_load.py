@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 
 from funrec_robot import build_mujoco_model, default_robot_path, load_robot
-from funrec_robot.feasibility import handle_load, joint_loads
+from funrec_robot.errors import Refusal
+from funrec_robot.feasibility import falls_to, handle_load, joint_loads
+from funrec_robot.plan import plan_scene
 from funrec_robot.scene import part_joint
 from funrec_robot.sim_model import robot_indices
 from tests.helpers.robot_scenes import write_gt_scene
@@ -41,3 +43,24 @@ def test_a_drop_down_doors_weight_reaches_the_joints_through_the_hand(tmp_path: 
     np.testing.assert_allclose(tau[base], force[:2], atol=1e-9)
     assert float(np.linalg.norm(tau[indices.dof])) > 0.0
     assert force @ v == pytest.approx(load, abs=1e-9)
+
+
+def test_a_part_that_falls_back_when_let_go_is_refused_before_planning(tmp_path: Path) -> None:
+    """mw_window_01's sash (5 kg on a vertical slide without friction) falls shut once let go at any height: every
+    robot that lifted it failed the check (the sash back at 0 m, up to 214 N on the hand as it fell on it). The
+    planner refuses it in one sentence before base placement; the horizontal sash of mw_window_horiz_00 has no
+    weight along its slide and is planned as before. No tolerance: the refusal is a yes/no on the joint's loads."""
+    from funrec.synth.assets import metaworld_root
+
+    try:
+        metaworld_root()
+    except Exception as exc:  # the assets family's scenes need Meta-World's models
+        pytest.skip(f"metaworld not installed: {exc}")
+    robot = load_robot(default_robot_path())
+    vertical = write_gt_scene("mw_window_01", tmp_path)
+    with pytest.raises(Refusal, match="does not stay at 0.480 m: its weight \\(48.7 N"):
+        plan_scene(default_robot_path(), vertical)
+    horizontal = write_gt_scene("mw_window_horiz_00", tmp_path)
+    model = build_mujoco_model(robot, horizontal / "scene.xml")
+    joint = part_joint(model, "part_0")
+    assert not falls_to(model, joint, 0.48, 0.0, 0.002)
