@@ -5,6 +5,7 @@ joint motion collides), the handle path (refined until the joint interpolation s
 from __future__ import annotations
 
 import logging
+from dataclasses import replace
 
 import mujoco
 import numpy as np
@@ -28,7 +29,7 @@ from funrec_robot.grasp import (
     release_command,
     surface_offset,
 )
-from funrec_robot.ik import WholeBodyIK
+from funrec_robot.ik import IKResult, WholeBodyIK
 from funrec_robot.plan_config import PlanConfig
 from funrec_robot.retime import Trajectory, point_to_point
 from funrec_robot.robot import RobotDescription
@@ -230,9 +231,21 @@ def _from_pregrasp(
         q_grasp = final_path[-1]
         approach[-1] = q_grasp
 
-    tracked = ik.track(path[1:], states[1:], q_grasp, _from_grasp(robot, posture[1:], q_grasp), holding, unload,
-                       give_up=(config.track_position_tolerance, config.track_orientation_tolerance))
+    give_up = (config.track_position_tolerance, config.track_orientation_tolerance)
+    tracked = ik.track(path[1:], states[1:], q_grasp, _from_grasp(robot, posture[1:], q_grasp), holding, unload, give_up=give_up)
     worst = _worst_target(tracked.position_error, tracked.orientation_error, config)
+    if not _tracked_all(tracked, len(states) - 1, config) and grasp.max_roll != 0.0 and task.joint_type == "revolute":
+        # The hand held still while the part turns between the pads (up to ``max_roll``) meets the front turning
+        # into its jaws: Spot's jaw hulls lay 14-16 mm inside cabinet doors at 0.3-0.9 rad and the IK, keeping them
+        # out, stopped 20 mm short of the bar. Turning with the part keeps the hand as it was at the grasp, clear
+        # of the front (as ``grasp.knob_roll_limit`` does for knobs); the grasp and the approach stay the same.
+        turned = replace(grasp, frames=handle_frames(task, states, grasp.depth, grasp.tilt, config.grasp, 0.0), max_roll=0.0)
+        path_turned = (turned.frames @ FLIP if flip else turned.frames) @ offset_frame(grasp.offset)
+        again = ik.track(path_turned[1:], states[1:], q_grasp, _from_grasp(robot, posture[1:], q_grasp), holding, unload,
+                         give_up=give_up)
+        if _tracked_all(again, len(states) - 1, config):
+            grasp, path, tracked = turned, path_turned, again
+            worst = _worst_target(tracked.position_error, tracked.orientation_error, config)
     _require(tracked.position_error[worst], tracked.orientation_error[worst], config, "handle path", states[1 + worst], task)
     q_path = np.vstack([q_grasp, tracked.q])
     states, path, q_path = _refine_path(ik, task, states, path, q_path, grasp, flip, holding, config)
@@ -419,6 +432,12 @@ def approach_move(robot: RobotDescription, model: mujoco.MjModel, q0: FloatArray
 def _approach_samples(robot: RobotDescription, model: mujoco.MjModel, q0: FloatArray, q1: FloatArray, config: PlanConfig) -> FloatArray:
     """Every sample of an approach move as the plan times it."""
     return approach_move(robot, model, q0, q1, config, config.approach_scale).q
+
+
+def _tracked_all(tracked: IKResult, targets: int, config: PlanConfig) -> bool:
+    """Whether the IK reached each of ``targets`` handle-path targets within the tracking tolerances."""
+    return len(tracked.q) == targets and bool(np.all(tracked.position_error <= config.track_position_tolerance)) and bool(
+        np.all(tracked.orientation_error <= config.track_orientation_tolerance))
 
 
 def _worst_target(position_error: FloatArray, orientation_error: FloatArray, config: PlanConfig) -> int:
