@@ -11,7 +11,7 @@ import mujoco
 import numpy as np
 
 from funrec.errors import PlanningError
-from funrec.geometry.joints import joint_transform
+from funrec.geometry.joints import joint_transform, joint_transforms
 from funrec.typed import BoolArray, FloatArray
 from funrec_robot.budget import check_time_limit
 from funrec_robot.ik import WholeBodyIK
@@ -370,6 +370,48 @@ def falls_to(model: mujoco.MjModel, joint: int, start: float, target: float, ste
     return bool(np.all(-direction * joint_loads(model, joint, states) > holding))
 
 
+def holding_force(model: mujoco.MjModel, joint: int, states: FloatArray, p_contact: FloatArray, axis: FloatArray,
+                  pivot: FloatArray) -> FloatArray:
+    """(N, 3) least force, world, N, that a hand at a revolute part's contact point (``p_contact`` (3,) at state 0,
+    on the joint of ``axis`` through ``pivot``) applies to hold the part still at each of ``states`` against its
+    gravity and spring: along the direction the point moves, with the joint load over the lever arm (as
+    :func:`handle_load`)."""
+    axis = np.asarray(axis, dtype=np.float64)
+    T = joint_transforms("revolute", axis, pivot, states)
+    points = T[:, :3, :3] @ np.asarray(p_contact, dtype=np.float64) + T[:, :3, 3]
+    v = np.cross(axis, points - np.asarray(pivot, dtype=np.float64))
+    speed2 = np.einsum("ij,ij->i", v, v)
+    scale = np.divide(joint_loads(model, joint, states), speed2, out=np.zeros(len(v)), where=speed2 > 1e-8)
+    return scale[:, None] * v
+
+
+def hand_capacity(robot: RobotDescription, model: mujoco.MjModel, share: float) -> float:
+    """Largest force at the grasp point, N, that no arm hinge must spend more than ``share`` of its effort limit on
+    (less what the arm's own weight takes of it at home), whatever the force's direction: each hinge's effort over
+    its distance to the grasp point at home, the longest lever such a force can have there. A drop-down door let go
+    to fall rests on a finger with its weight while the hand slides off the bar: TIAGo's wrist (arm_5_joint, 3 N m,
+    0.39 m from the grasp point) held 25 N that way only beyond its limit."""
+    indices = robot_indices(robot, model)
+    data = mujoco.MjData(model)
+    qpos = model.qpos0.copy()
+    qpos[indices.qpos] = robot.q_home
+    qpos[indices.held_qpos] = indices.held_values
+    apply_couplings(indices, qpos)
+    own = gravity_load(model, data, qpos)[indices.dof].copy()  # data's kinematics are at home after this
+    if robot.gravity_compensation:
+        own = own * model.body_gravcomp[model.dof_bodyid[indices.dof]]
+    p_grasp = data.site_xpos[indices.grasp_site]
+    capacity = np.inf
+    for k, name in enumerate(robot.joint_names):
+        joint = int(model.dof_jntid[indices.dof[k]])
+        if name not in robot.arm_joints or model.jnt_type[joint] != mujoco.mjtJoint.mjJNT_HINGE:
+            continue
+        lever = float(np.linalg.norm(p_grasp - data.xanchor[joint]))
+        if lever > 1e-3:
+            capacity = min(capacity, max(share * float(robot.effort_max[k]) - abs(float(own[k])), 0.0) / lever)
+    return float(capacity)
+
+
 def resting_force(model: mujoco.MjModel, joint: int, states: FloatArray, radius: float) -> FloatArray:
     """(N,) force with which a scene joint's part, let go at each of ``states``, presses on what supports it
     ``radius`` (m) from a revolute axis: its gravity and spring torque over that radius, N."""
@@ -383,7 +425,9 @@ __all__ = [
     "first_blocked_state",
     "first_collision",
     "gravity_overload",
+    "hand_capacity",
     "handle_load",
+    "holding_force",
     "joint_loads",
     "kinematic_collisions",
     "release_sweep_depth",

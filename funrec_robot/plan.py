@@ -26,9 +26,10 @@ from funrec_robot.feasibility import (
     dynamic_limits,
     falls_to,
     first_blocked_state,
+    hand_capacity,
+    holding_force,
     holding_load,
     joint_loads,
-    resting_force,
     resting_state,
 )
 from funrec_robot.ghosts import part_ghosts, range_states, without_geoms
@@ -309,12 +310,10 @@ def _handle_path(
             if falls_to(model, joint, target_state, reach_capped["requested"], step, not config.fall_ignores_friction):
                 final_state = reach_capped["requested"]
                 reach_capped["released_to_fall"] = True
-                if task.joint_type == "revolute" and task.pivot_world is not None:
-                    radius = float(np.linalg.norm(np.cross(task.axis_world, task.p_world_contact - task.pivot_world)))
-                    light = int(np.argmin(np.r_[resting_force(model, joint, states, radius) <= config.fall_rest_force, False]))
-                    if light >= 2:
-                        states, target_state = states[:light], float(states[light - 1])
-                        reach_capped["state"] = target_state
+                light = _held_prefix(robot, model, joint, task, geometry, states, config)
+                if light >= 2:
+                    states, target_state = states[:light], float(states[light - 1])
+                    reach_capped["state"] = target_state
                 # The gripper turns on the bar to let the door go sideways off a finger (GraspConfig.fall_roll).
                 config = replace(config, grasp=replace(config.grasp, fall_state=target_state))
             candidates = grasp_candidates(robot, task, states, geometry, r_max, config.grasp)
@@ -328,6 +327,26 @@ def _handle_path(
             f"({geometry.p_base_shoulder[2]:.2f} m high) whatever the grasp tilt"
         )
     return _HandlePath(states, start_state, target_state, final_state, demo, capped, reach_capped, config, candidates)
+
+
+def _held_prefix(robot: RobotDescription, model: mujoco.MjModel, joint: int, task: ArticulationTask, geometry: RobotGeometry,
+                 states: FloatArray, config: PlanConfig) -> int:
+    """How many leading ``states`` a revolute part that is let go to fall may be held for: up to the first where its
+    weight presses on the hand with more than ``fall_rest_force`` or than the arm holds within
+    ``gravity_effort_share`` of its joints' efforts (``hand_capacity``), or where a lift would hold more than that
+    share of its effort limit (the weight above it, in every posture the same, and the part's pull on the hand).
+    ``len(states)`` if none; 0 for a prismatic part."""
+    if task.joint_type != "revolute" or task.pivot_world is None:
+        return 0
+    force = holding_force(model, joint, states, task.p_world_contact, task.axis_world, task.pivot_world)
+    limit = min(config.fall_rest_force, hand_capacity(robot, model, config.gravity_effort_share))
+    light = np.linalg.norm(force, axis=1) <= limit
+    if geometry.lift_range is not None:
+        lift = len(robot.base_joints)
+        weight = float(holding_load(robot, model, robot.q_home[None])[0, lift])
+        load = np.abs(weight + geometry.lift_sign * force[:, 2])
+        light &= load <= config.gravity_effort_share * float(robot.effort_max[lift])
+    return int(np.argmin(np.r_[light, False]))
 
 
 def _floor_refusal(
@@ -418,7 +437,7 @@ def _search(
                 continue
         try:
             return whole_body_configurations(robot, model, joint, task, grasp, states, placement, handle.target_state,
-                                             geometry.fingertip_depth, config, unload)
+                                             geometry.fingertip_depth, config, unload, handle.final_state)
         except GravityOverload as exc:
             errors.append((1, exc))
             if geometry.lift_range is not None and exc.joint == robot.arm_joints[0]:

@@ -105,9 +105,12 @@ def whole_body_configurations(
     fingertip_depth: float,
     config: PlanConfig,
     unload: bool = False,
+    rest_state: float | None = None,
 ) -> dict:
     """Whole-body IK for approach, grasp, handle path and retreat from a base placement; with ``unload``, the
-    arm's gravity load is lowered through its null space at every IK waypoint (IKConfig.gravity_cost).
+    arm's gravity load is lowered through its null space at every IK waypoint (IKConfig.gravity_cost). A part let
+    go to fall comes to rest at ``rest_state`` (None: it stays where the hand lets go): the retreat keeps clear of it
+    there.
 
     Raises:
         GravityOverload: a joint must hold more than PlanConfig.gravity_effort_share of its effort limit.
@@ -164,7 +167,7 @@ def whole_body_configurations(
         if rank > 0 and (e_pos > config.track_position_tolerance or e_rot > config.track_orientation_tolerance):
             break  # the other way round does not even reach the pre-grasp pose
         args = (robot, model, ik, task, grasp, states, placement, target_state, fingertip_depth, config, unload, flip, path,
-                q_start, q_pre, e_pos, e_rot, posture, set(handle.tolist()))
+                q_start, q_pre, e_pos, e_rot, posture, set(handle.tolist()), rest_state)
         straightened: list[bool] = []
         try:
             return _from_pregrasp(*args, straightened)
@@ -191,7 +194,7 @@ def _from_pregrasp(
     robot: RobotDescription, model: mujoco.MjModel, ik: WholeBodyIK, task: ArticulationTask, grasp: GraspCandidate,
     states: FloatArray, placement: BasePlacement, target_state: float, fingertip_depth: float, config: PlanConfig,
     unload: bool, flip: bool, path: FloatArray, q_start: FloatArray, q_pre: FloatArray, e_pos: float, e_rot: float,
-    posture: FloatArray, handle: set[int], straightened: list[bool] | None,
+    posture: FloatArray, handle: set[int], rest_state: float | None, straightened: list[bool] | None,
 ) -> dict:
     """The rest of :func:`whole_body_configurations` for one way round of the gripper (``flip``) from its
     pre-grasp solution: grasp, approach (with a via pose if needed), handle path, retreat. With ``straightened`` (a
@@ -272,10 +275,13 @@ def _from_pregrasp(
     # move, Spot's hand swung 1.6 mm sideways into the opened jaw's side of a sliding door's bar, 5 mm away, as it
     # backed off, and knocked the door (15 kg on 1 N s/m) to 1.2 cm/s: it coasted 2 cm short of its target.
     retreat_path = [q_retreat]
+    # A part let go to fall lies at its rest for all but the first moments of the (slowed) retreat: TIAGo's base,
+    # solved against a dishwasher door still at the 0.19 rad it was let go at, rolled onto the door lying open.
+    retreat_state = target_state if rest_state is None else rest_state
     steps = np.arange(1, int(np.ceil(config.retreat_distance / config.retreat_step)) + 1) * config.retreat_step
     for distance in np.minimum(steps, config.retreat_distance):
         T_retreat = offset_along_approach(path[-1], float(distance))
-        q_next, e_pos, e_rot = ik.solve(T_retreat, q_retreat, q_retreat, target_state, released, rolling=True)
+        q_next, e_pos, e_rot = ik.solve(T_retreat, q_retreat, q_retreat, retreat_state, released, rolling=True)
         if e_pos > config.track_position_tolerance or e_rot > config.track_orientation_tolerance:
             break
         q_retreat = q_next
