@@ -64,3 +64,13 @@ def test_a_part_that_falls_back_when_let_go_is_refused_before_planning(tmp_path:
     model = build_mujoco_model(robot, horizontal / "scene.xml")
     joint = part_joint(model, "part_0")
     assert not falls_to(model, joint, 0.48, 0.0, 0.002)
+
+
+def test_a_door_let_go_to_fall_leaves_the_hand_room_below_the_force_bound() -> None:
+    """The hand slides off the bar of a door let go to fall against the door's weight on the finger and as much
+    friction again (mu ~ 1): twice ``fall_rest_force`` must stay a fifth below the check's handle force bound (at
+    25 N Fetch met 50.8 N sliding off a dishwasher door). Exact: both are settings."""
+    from funrec_robot.check import CheckConfig
+    from funrec_robot.plan_config import PlanConfig
+
+    assert 2.0 * PlanConfig().fall_rest_force <= 0.8 * CheckConfig().max_handle_force
