@@ -42,11 +42,14 @@ from funrec_robot.retime import Trajectory, point_to_point, retime_path
 from funrec_robot.robot import RobotDescription, load_robot
 from funrec_robot.robot_geometry import RobotGeometry, measure_robot
 from funrec_robot.scene import (
+    Polygon,
     bodies_geoms,
     hull_approximated,
     part_geoms,
     part_joint,
     part_sweep_footprint,
+    part_travel,
+    polygon_from_points,
     robot_bodies,
     static_footprint,
 )
@@ -98,16 +101,14 @@ def _placement_problem(
     exclude = np.concatenate([bodies_geoms(model, robot_bodies(model)), part_geoms(model, joint)])
     static = static_footprint(model, exclude, z_band, wrist[:, :2].mean(axis=0), config.footprint_radius,
                               standing=hull_approximated(model, joint))
-    sweeps = []
-    for b in range(bases):
-        mine = states[(stretch == b) | (stretch == b + 1)]
-        sampled = mine[:: max(1, len(mine) // 12)].tolist() + [mine[-1]]
-        if falls_to is not None and b == bases - 1:
-            # A part let go to fall sweeps on to where it comes to rest, which a twin knows only from the
-            # demonstration: the last stop also keeps clear of ``fall_sweep_margin`` beyond.
-            direction = 1.0 if falls_to >= states[-1] else -1.0
-            sampled += np.linspace(states[-1], falls_to + direction * config.fall_sweep_margin, 8).tolist()
-        sweeps.append(part_sweep_footprint(model, joint, sampled, z_band))
+    fall = None
+    if falls_to is not None:
+        # A part let go to fall sweeps on to where it comes to rest, which a twin knows only from the
+        # demonstration: the last stop, where the base stands meanwhile, also keeps clear of ``fall_sweep_margin``
+        # beyond.
+        direction = 1.0 if falls_to >= states[-1] else -1.0
+        fall = np.linspace(states[-1], falls_to + direction * config.fall_sweep_margin, 8)
+    sweeps, passing = _sweep_windows(model, joint, states, bases, z_band, config.placement.clearance, fall)
     free = tuple(motion in robot.base_motions for motion in ("x", "y", "yaw"))
     return PlacementProblem(
         wrist_world=targets,
@@ -120,11 +121,93 @@ def _placement_problem(
         arm_circles=geometry.arm_circles,
         static=static,
         sweep=tuple(sweeps),
+        passing=passing,
         start_part=part_sweep_footprint(model, joint, [states[0]], z_band),
         reach_yaw=geometry.reach_yaw,
         reach_min=geometry.reach_min,
         rolling=robot.drive == "differential",
     )
+
+
+def _stop_weights(k: float, n: int, bases: int) -> FloatArray:
+    """(bases,) weights of the stops' poses in the base's pose at (fractional) path state ``k`` of ``n``: the
+    interpolation of ``whole_body.posture_along``, whose references the IK follows."""
+    position = min(max((k + 0.5) * bases / n - 0.5, 0.0), bases - 1.0)
+    w = np.zeros(bases)
+    low = min(int(np.floor(position)), bases - 1)
+    w[low] = 1.0 - (position - low)
+    if position > low:
+        w[low + 1] = position - low
+    return w
+
+
+def _merged(footprints: tuple[Polygon, ...]) -> tuple[Polygon, ...]:
+    """One footprint for all of a part's: the hull of their vertices over their heights together. Over a window the
+    part moves no further than the clearance, so the hull adds little to its pieces (a door's bar and the shelves on
+    its back lie within its slab's hull but for the bar's standoff) and IPOPT sees one polygon per window instead of
+    one per geom (a fridge door has five)."""
+    if len(footprints) < 2:
+        return footprints
+    band = (min(p.z_band[0] for p in footprints), max(p.z_band[1] for p in footprints))
+    return (polygon_from_points(footprints[0].name, np.vstack([p.vertices for p in footprints]), band),)
+
+
+def _sweep_windows(
+    model: mujoco.MjModel,
+    joint: int,
+    states: FloatArray,
+    bases: int,
+    z_band: tuple[float, float],
+    step: float,
+    after: FloatArray | None = None,
+) -> tuple[tuple[tuple[Polygon, ...], ...], tuple[tuple[FloatArray, tuple[Polygon, ...]], ...]]:
+    """What of the part's sweep each base pose must keep clear of: per stop, the footprints of the part while the
+    base stands there (the last stop also over the states ``after`` the path: a part let go falling on); and
+    (weights of the stops, footprints) for the base on its way between two stops.
+
+    The base follows ``whole_body.posture_along``: path state k has the base at position (k + 0.5) B / n - 0.5
+    between the stops (clamped to the first and last), so it stands at a stop only there and is on its way to the
+    next while the part moves on. The path is cut at the stops and into windows in which no corner of the part
+    travels further than ``step`` (the placement's clearance: a window asks the base to keep clear of at most that
+    much more of the sweep than the part covers at any one instant); the base keeps clear of a window's swept
+    footprint at both its ends and half-way (it moves on a straight line between stops). A stop keeps clear of the
+    part over the windows it stands in or next to (one footprint per geom, as with one stop, where that is the
+    whole sweep), not of its whole stretch: with one footprint per stop over its stretch and the next, the first of
+    3 stops kept clear of two thirds of a fridge door's sweep, which in a room corner left no room (issue 14)."""
+    n = len(states)
+    index = np.arange(n, dtype=np.float64)
+    travelled = np.r_[0.0, np.cumsum(part_travel(model, joint, states))]
+    knots = np.clip((np.arange(bases) + 0.5) * n / bases - 0.5, 0.0, n - 1.0)
+    cuts = np.unique(np.r_[0.0, knots, n - 1.0])
+
+    def between(a: float, c: float) -> FloatArray:
+        return np.r_[np.interp(a, index, states), states[(index > a) & (index < c)], np.interp(c, index, states)]
+
+    spans = np.tile([np.inf, -np.inf], (bases, 1))  # path states (fractional) around each stop
+    passing: list[tuple[FloatArray, tuple[Polygon, ...]]] = []
+    for start, end in zip(cuts[:-1], cuts[1:]):
+        length = float(np.interp(end, index, travelled) - np.interp(start, index, travelled))
+        pieces = max(1, math.ceil(length / step - 1e-9))
+        bounds = np.linspace(start, end, pieces + 1)
+        if length > 0.0:
+            bounds = np.interp(np.linspace(np.interp(start, index, travelled), np.interp(end, index, travelled), pieces + 1),
+                               travelled, index)
+            bounds[0], bounds[-1] = start, end
+        for a, c in zip(bounds[:-1], bounds[1:]):
+            footprint: tuple[Polygon, ...] | None = None
+            for k in (a, 0.5 * (a + c), c):
+                w = _stop_weights(k, n, bases)
+                at = np.flatnonzero(w > 1.0 - 1e-9)
+                if len(at):
+                    spans[at[0]] = min(spans[at[0], 0], a), max(spans[at[0], 1], c)
+                else:
+                    footprint = footprint or _merged(part_sweep_footprint(model, joint, between(a, c), z_band))
+                    passing.append((w, footprint))
+    spans[:, 0] = np.minimum(spans[:, 0], knots)  # one state only (the reach check): the part where it is
+    spans[:, 1] = np.maximum(spans[:, 1], knots)
+    sweeps = [between(*span) for span in spans]
+    sweeps[-1] = np.r_[sweeps[-1], () if after is None else after]
+    return tuple(part_sweep_footprint(model, joint, swept, z_band) for swept in sweeps), tuple(passing)
 
 
 def _demo_states(task: ArticulationTask, start: float, config: PlanConfig) -> FloatArray:

@@ -291,6 +291,23 @@ def part_sweep_footprint(
     return tuple(out)
 
 
+def part_travel(model: mujoco.MjModel, joint: int, states: npt.ArrayLike) -> FloatArray:
+    """(S - 1,) how far any corner of the part's colliding boxes moves between consecutive states (straight
+    line, the chord of a turning door's arc), m."""
+    geoms = _colliding(model, part_geoms(model, joint))
+    data = mujoco.MjData(model)
+    corners = []
+    for state in np.atleast_1d(np.asarray(states, dtype=np.float64)):
+        data.qpos[:] = model.qpos0
+        data.qpos[model.jnt_qposadr[joint]] = state
+        mujoco.mj_kinematics(model, data)
+        corners.append(box_corners(*geom_boxes(model, data, geoms)).reshape(-1, 3))
+    if len(corners) < 2 or not len(geoms):
+        return np.zeros(max(len(corners) - 1, 0))
+    stacked = np.array(corners)
+    return np.linalg.norm(np.diff(stacked, axis=0), axis=2).max(axis=1)
+
+
 def _front_face(
     p_box: FloatArray, half: FloatArray, low: FloatArray, high: FloatArray, candidates: npt.NDArray[np.bool_], thin_only: bool
 ) -> tuple[float, int, int] | None:
@@ -443,6 +460,7 @@ __all__ = [
     "part_geoms",
     "part_joint",
     "part_sweep_footprint",
+    "part_travel",
     "polygon_from_points",
     "robot_bodies",
     "static_footprint",

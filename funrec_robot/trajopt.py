@@ -92,7 +92,7 @@ class PlacementProblem:
     static: tuple[Polygon, ...]
     """Footprints of the furniture (everything but the moving part)."""
     sweep: tuple[tuple[Polygon, ...], ...]
-    """Per base pose, footprints of the moving part over the states of its stretch and of the next one."""
+    """Per base pose, footprints of the moving part while the base stands there."""
     start_part: tuple[Polygon, ...]
     """Footprints of the moving part at the start state (for the arm at home)."""
     reach_yaw: float = 0.0
@@ -104,6 +104,9 @@ class PlacementProblem:
     rolling: bool = False
     """The stops share one heading and lie on one line along it: a differential drive rolls straight from one
     to the next (its wheels cannot move it sideways)."""
+    passing: tuple[tuple[FloatArray, tuple[Polygon, ...]], ...] = ()
+    """The base on its way between stops while the part moves: (B,) weights of the stops' poses (the base's pose
+    is their weighted sum) and the footprints of the moving part it keeps clear of there."""
 
     def window(self, config: PlacementConfig) -> tuple[float, float, float]:
         """(r_min, r_max, r_mid): the wrist distances from the shoulder allowed and preferred, m."""
@@ -243,9 +246,12 @@ def _near(polygons: tuple[Polygon, ...], circles: tuple[Circle, ...], poses: Flo
 
 
 def _base_terms(
-    problem: PlacementProblem, b: int, pose: ca.MX, config: PlacementConfig, near: FloatArray | None = None
+    problem: PlacementProblem, b: int, pose: ca.MX, config: PlacementConfig, near: FloatArray | None = None,
+    guess: bool = False,
 ) -> _Terms:
-    """Costs and constraints of base stop ``b``; with ``near`` (P, 3) poses, only the footprints near them."""
+    """Costs and constraints of base stop ``b``; with ``near`` (P, 3) poses, only the footprints near them; with
+    ``guess``, the stop also keeps clear of the part while the base is on its way and nearer this stop than any
+    other (``_nearest_passing``)."""
     terms = _Terms()
     targets = _targets(problem, b, config)
     R = _rotation(pose[2])
@@ -263,12 +269,22 @@ def _base_terms(
     region = targets[:, :2]
     window = r_max + max(float(np.linalg.norm(c.centre_base)) + c.radius for c in problem.base_circles + problem.arm_circles)
     window += float(np.linalg.norm(problem.p_base_shoulder[:2])) + config.clearance
-    polygons = _relevant(problem.static + problem.sweep[b], problem.base_circles, region, window)
+    sweep = problem.sweep[b] + (_nearest_passing(problem, b) if guess else ())
+    polygons = _relevant(problem.static + sweep, problem.base_circles, region, window)
     _clearance_terms(terms, pose, problem.base_circles, _near(polygons, problem.base_circles, near, config.active_radius), config)
     if b == 0:
         polygons = _relevant(problem.static + problem.start_part, problem.arm_circles, region, window)
         _clearance_terms(terms, pose, problem.arm_circles, _near(polygons, problem.arm_circles, near, config.active_radius), config)
     return terms
+
+
+def _nearest_passing(problem: PlacementProblem, b: int) -> tuple[Polygon, ...]:
+    """The footprints of the part while the base is on its way and nearer stop ``b`` than any other."""
+    out: dict[int, Polygon] = {}  # a window's footprints serve up to three points of it: each once
+    for weights, footprints in problem.passing:
+        if weights[b] >= 0.5:
+            out.update((id(p), p) for p in footprints)
+    return tuple(out.values())
 
 
 def _targets(problem: PlacementProblem, b: int, config: PlacementConfig) -> FloatArray:
@@ -325,32 +341,41 @@ def _best_guess(problem: PlacementProblem, b: int, functions: tuple[ca.Function,
     return grid[best]
 
 
+def _gap(pose: FloatArray, circles: tuple[Circle, ...], polygons: tuple[Polygon, ...]) -> float:
+    """Smallest (lower-bound) gap between the discs at a base pose and the polygons of their height, m."""
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    R = np.array([[c, -s], [s, c]])
+    gap = np.inf
+    for circle in circles:
+        banded = [polygon for polygon in polygons if _overlap(circle.z_band, polygon.z_band)]
+        if banded:
+            gap = min(gap, float(lower_distances(banded, pose[:2] + R @ circle.centre_base).min()) - circle.radius)
+    return gap
+
+
 def exact_clearance(
     poses: npt.ArrayLike, problem: PlacementProblem
 ) -> float:
-    """Smallest (lower-bound) gap between the robot's discs and the footprints at the given base poses, m."""
+    """Smallest (lower-bound) gap between the robot's discs and the footprints at the given base poses and on
+    the way between them (``PlacementProblem.passing``), m."""
     poses = np.atleast_2d(np.asarray(poses, dtype=np.float64))
     gap = np.inf
     for b, pose in enumerate(poses):
-        c, s = np.cos(pose[2]), np.sin(pose[2])
-        R = np.array([[c, -s], [s, c]])
-        pairs = [(circle, problem.static + problem.sweep[b]) for circle in problem.base_circles]
+        gap = min(gap, _gap(pose, problem.base_circles, problem.static + problem.sweep[b]))
         if b == 0:
-            pairs += [(circle, problem.static + problem.start_part) for circle in problem.arm_circles]
-        for circle, polygons in pairs:
-            banded = [polygon for polygon in polygons if _overlap(circle.z_band, polygon.z_band)]
-            if banded:
-                gap = min(gap, float(lower_distances(banded, pose[:2] + R @ circle.centre_base).min()) - circle.radius)
+            gap = min(gap, _gap(pose, problem.arm_circles, problem.static + problem.start_part))
+    for weights, footprints in problem.passing:
+        gap = min(gap, _gap(weights @ poses, problem.base_circles, footprints))
     return gap
 
 
 def _stop_functions(
-    problem: PlacementProblem, b: int, config: PlacementConfig, near: FloatArray | None
+    problem: PlacementProblem, b: int, config: PlacementConfig, near: FloatArray | None, guess: bool = False
 ) -> tuple[tuple[ca.Function, ca.Function], _Terms]:
     """Base stop ``b``'s cost and constraints as a function of its pose, the same with its reach constraints
-    alone (the first of its terms), and its terms (for the bounds)."""
+    alone (the first of its terms), and its terms (for the bounds); ``guess``: see ``_base_terms``."""
     pose = ca.MX.sym(f"pose{b}", 3)
-    own = _base_terms(problem, b, pose, config, near)
+    own = _base_terms(problem, b, pose, config, near, guess)
     full = ca.Function(f"base{b}", [pose], [own.cost, ca.vertcat(*own.g)])
     return (full, ca.Function(f"reach{b}", [pose], [own.cost, own.g[0]])), own
 
@@ -373,10 +398,16 @@ def _assemble(problem: PlacementProblem, x: ca.MX, config: PlacementConfig, near
     for b in range(B - 1):
         terms.cost += config.move_weight * ca.sumsqr(poses[b + 1][:2] - poses[b][:2])
         region = _targets(problem, b + 1, config)[:, :2]
-        polygons = _relevant(problem.static + problem.sweep[b + 1], problem.base_circles, region, 2.0)
+        polygons = _relevant(problem.static, problem.base_circles, region, 2.0)
         if near is not None:
             polygons = _near(polygons, problem.base_circles, (near[b] + near[b + 1]) / 2.0, config.active_radius)
         _clearance_terms(terms, (poses[b] + poses[b + 1]) / 2, problem.base_circles, polygons, config)
+    for weights, footprints in problem.passing:  # the base on its way between stops, the part moving on
+        polygons = footprints
+        if near is not None:
+            polygons = _near(polygons, problem.base_circles, sum(w * n for w, n in zip(weights, near)), config.active_radius)
+        pose = sum((float(w) * p for w, p in zip(weights, poses) if w > 0.0), ca.MX.zeros(3))
+        _clearance_terms(terms, pose, problem.base_circles, polygons, config)
     return terms
 
 
@@ -405,26 +436,23 @@ def _ipopt(x: ca.MX, terms: _Terms, x0: FloatArray, lbx: FloatArray, ubx: FloatA
     return np.asarray(result["x"]).ravel(), float(result["f"]), float(_violation(g_value[:, None], lbg, ubg)[0])
 
 
-def place_base(problem: PlacementProblem, config: PlacementConfig = PlacementConfig()) -> BasePlacement:
-    """Optimise the base poses of a handle path.
-
-    Each pose starts from the best point of a grid around its targets' centroid (the problem has one
-    basin per side of the furniture), then all poses are refined together by IPOPT, first against the
-    footprints near the guess (``PlacementConfig.active_radius``), grown until the solution clears them all.
-
-    Raises:
-        PlanningError: IPOPT finds no pose that satisfies the reach and clearance constraints; the message
-            gives the remaining violation and the closest target distances.
-    """
+def _initial_guess(problem: PlacementProblem, config: PlacementConfig, guess: bool) -> FloatArray:
+    """(3 B,) each stop's best grid point (``guess``: see ``_base_terms``), on the first's line of travel for a
+    differential drive."""
     B = problem.bases
-    x = ca.MX.sym("x", 3 * B)
-    x0 = np.concatenate([_best_guess(problem, b, *_stop_functions(problem, b, config, None), config) for b in range(B)])
+    x0 = np.concatenate([_best_guess(problem, b, *_stop_functions(problem, b, config, None, guess), config) for b in range(B)])
     if problem.rolling:  # the other stops' guesses moved onto the first's line of travel
         heading = np.array([np.cos(x0[2]), np.sin(x0[2])])
         for b in range(1, B):
             x0[3 * b : 3 * b + 2] = x0[:2] + heading * float(heading @ (x0[3 * b : 3 * b + 2] - x0[:2]))
             x0[3 * b + 2] = x0[2]
-    full = _assemble(problem, x, config, None)
+    return x0
+
+
+def _refine(problem: PlacementProblem, x: ca.MX, full: _Terms, x0: FloatArray, config: PlacementConfig) -> tuple[FloatArray, float, float]:
+    """IPOPT from ``x0`` against the footprints near it, grown until the solution clears them all
+    (``PlacementConfig.active_radius``); returns the solution, its cost and its violation of ``full``."""
+    B = problem.bases
     full_g = ca.Function("g", [x], [ca.vertcat(*full.g)])
     lbg, ubg = full.bounds()
     free = np.tile(problem.base_free, B)
@@ -443,6 +471,37 @@ def place_base(problem: PlacementProblem, config: PlacementConfig = PlacementCon
             break
         near = [np.vstack([near[b], solution[3 * b : 3 * b + 3]]) for b in range(B)]
         start = solution
+    return solution, cost, violation
+
+
+def place_base(problem: PlacementProblem, config: PlacementConfig = PlacementConfig()) -> BasePlacement:
+    """Optimise the base poses of a handle path.
+
+    Each pose starts from the best point of a grid around its targets' centroid (the problem has one
+    basin per side of the furniture), then all poses are refined together by IPOPT, first against the
+    footprints near the guess (``PlacementConfig.active_radius``), grown until the solution clears them all;
+    where that fails, from a second guess (``_initial_guess``).
+
+    Raises:
+        PlanningError: IPOPT finds no pose that satisfies the reach and clearance constraints; the message
+            gives the remaining violation and the closest target distances.
+    """
+    B = problem.bases
+    x = ca.MX.sym("x", 3 * B)
+    full = _assemble(problem, x, config, None)
+    tried: list[FloatArray] = []
+    # First from guesses clear of the part over the whole time the base is nearest each stop (the conservative
+    # start: close to where one footprint per stop over its stretch put them), then, where IPOPT finds no placement
+    # from there, from guesses clear of it only while the base stands there (a fridge door swinging towards a
+    # side wall leaves the conservative first guess no room).
+    for guess in (True, False):
+        x0 = _initial_guess(problem, config, guess)
+        if any(np.array_equal(x0, other) for other in tried):
+            continue
+        tried.append(x0)
+        solution, cost, violation = _refine(problem, x, full, x0, config)
+        if violation <= config.violation_tolerance:
+            break
     poses_out = solution.reshape(B, 3)
     poses_out[:, 2] = np.where(problem.base_free[2], np.angle(np.exp(1j * poses_out[:, 2])), poses_out[:, 2])
     distances = _distances(problem, poses_out)
