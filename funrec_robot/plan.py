@@ -109,6 +109,13 @@ def _placement_problem(
         direction = 1.0 if falls_to >= states[-1] else -1.0
         fall = np.linspace(states[-1], falls_to + direction * config.fall_sweep_margin, 8)
     sweeps, passing = _sweep_windows(model, joint, states, bases, z_band, config.placement.clearance, fall)
+    stretch_sweep = []
+    for b in range(bases):
+        mine = states[(stretch == b) | (stretch == b + 1)]
+        sampled = mine[:: max(1, len(mine) // 12)].tolist() + [mine[-1]]
+        if fall is not None and b == bases - 1:
+            sampled += fall.tolist()
+        stretch_sweep.append(part_sweep_footprint(model, joint, sampled, z_band))
     free = tuple(motion in robot.base_motions for motion in ("x", "y", "yaw"))
     return PlacementProblem(
         wrist_world=targets,
@@ -122,6 +129,7 @@ def _placement_problem(
         static=static,
         sweep=tuple(sweeps),
         passing=passing,
+        stretch_sweep=tuple(stretch_sweep),
         start_part=part_sweep_footprint(model, joint, [states[0]], z_band),
         reach_yaw=geometry.reach_yaw,
         reach_min=geometry.reach_min,

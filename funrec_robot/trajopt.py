@@ -11,7 +11,7 @@ so the forward kinematics of the base (a planar rigid motion of the shoulder and
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import casadi as ca
 import numpy as np
@@ -107,6 +107,10 @@ class PlacementProblem:
     passing: tuple[tuple[FloatArray, tuple[Polygon, ...]], ...] = ()
     """The base on its way between stops while the part moves: (B,) weights of the stops' poses (the base's pose
     is their weighted sum) and the footprints of the moving part it keeps clear of there."""
+    stretch_sweep: tuple[tuple[Polygon, ...], ...] = ()
+    """Per base pose, footprints of the moving part over the states of its stretch and of the next one: the
+    conservative placement, in which each stop keeps clear of those whatever the base does on its way, is solved
+    first (one convex footprint per geom: IPOPT slides round it where it stuck between the windows' pieces)."""
 
     def window(self, config: PlacementConfig) -> tuple[float, float, float]:
         """(r_min, r_max, r_mid): the wrist distances from the shoulder allowed and preferred, m."""
@@ -246,12 +250,9 @@ def _near(polygons: tuple[Polygon, ...], circles: tuple[Circle, ...], poses: Flo
 
 
 def _base_terms(
-    problem: PlacementProblem, b: int, pose: ca.MX, config: PlacementConfig, near: FloatArray | None = None,
-    guess: bool = False,
+    problem: PlacementProblem, b: int, pose: ca.MX, config: PlacementConfig, near: FloatArray | None = None
 ) -> _Terms:
-    """Costs and constraints of base stop ``b``; with ``near`` (P, 3) poses, only the footprints near them; with
-    ``guess``, the stop also keeps clear of the part while the base is on its way and nearer this stop than any
-    other (``_nearest_passing``)."""
+    """Costs and constraints of base stop ``b``; with ``near`` (P, 3) poses, only the footprints near them."""
     terms = _Terms()
     targets = _targets(problem, b, config)
     R = _rotation(pose[2])
@@ -269,22 +270,12 @@ def _base_terms(
     region = targets[:, :2]
     window = r_max + max(float(np.linalg.norm(c.centre_base)) + c.radius for c in problem.base_circles + problem.arm_circles)
     window += float(np.linalg.norm(problem.p_base_shoulder[:2])) + config.clearance
-    sweep = problem.sweep[b] + (_nearest_passing(problem, b) if guess else ())
-    polygons = _relevant(problem.static + sweep, problem.base_circles, region, window)
+    polygons = _relevant(problem.static + problem.sweep[b], problem.base_circles, region, window)
     _clearance_terms(terms, pose, problem.base_circles, _near(polygons, problem.base_circles, near, config.active_radius), config)
     if b == 0:
         polygons = _relevant(problem.static + problem.start_part, problem.arm_circles, region, window)
         _clearance_terms(terms, pose, problem.arm_circles, _near(polygons, problem.arm_circles, near, config.active_radius), config)
     return terms
-
-
-def _nearest_passing(problem: PlacementProblem, b: int) -> tuple[Polygon, ...]:
-    """The footprints of the part while the base is on its way and nearer stop ``b`` than any other."""
-    out: dict[int, Polygon] = {}  # a window's footprints serve up to three points of it: each once
-    for weights, footprints in problem.passing:
-        if weights[b] >= 0.5:
-            out.update((id(p), p) for p in footprints)
-    return tuple(out.values())
 
 
 def _targets(problem: PlacementProblem, b: int, config: PlacementConfig) -> FloatArray:
@@ -370,12 +361,12 @@ def exact_clearance(
 
 
 def _stop_functions(
-    problem: PlacementProblem, b: int, config: PlacementConfig, near: FloatArray | None, guess: bool = False
+    problem: PlacementProblem, b: int, config: PlacementConfig, near: FloatArray | None
 ) -> tuple[tuple[ca.Function, ca.Function], _Terms]:
     """Base stop ``b``'s cost and constraints as a function of its pose, the same with its reach constraints
-    alone (the first of its terms), and its terms (for the bounds); ``guess``: see ``_base_terms``."""
+    alone (the first of its terms), and its terms (for the bounds)."""
     pose = ca.MX.sym(f"pose{b}", 3)
-    own = _base_terms(problem, b, pose, config, near, guess)
+    own = _base_terms(problem, b, pose, config, near)
     full = ca.Function(f"base{b}", [pose], [own.cost, ca.vertcat(*own.g)])
     return (full, ca.Function(f"reach{b}", [pose], [own.cost, own.g[0]])), own
 
@@ -398,7 +389,8 @@ def _assemble(problem: PlacementProblem, x: ca.MX, config: PlacementConfig, near
     for b in range(B - 1):
         terms.cost += config.move_weight * ca.sumsqr(poses[b + 1][:2] - poses[b][:2])
         region = _targets(problem, b + 1, config)[:, :2]
-        polygons = _relevant(problem.static, problem.base_circles, region, 2.0)
+        # Half-way between stops (posed without ``passing``: clear of the part over the next stop's footprints).
+        polygons = _relevant(problem.static + (() if problem.passing else problem.sweep[b + 1]), problem.base_circles, region, 2.0)
         if near is not None:
             polygons = _near(polygons, problem.base_circles, (near[b] + near[b + 1]) / 2.0, config.active_radius)
         _clearance_terms(terms, (poses[b] + poses[b + 1]) / 2, problem.base_circles, polygons, config)
@@ -436,11 +428,10 @@ def _ipopt(x: ca.MX, terms: _Terms, x0: FloatArray, lbx: FloatArray, ubx: FloatA
     return np.asarray(result["x"]).ravel(), float(result["f"]), float(_violation(g_value[:, None], lbg, ubg)[0])
 
 
-def _initial_guess(problem: PlacementProblem, config: PlacementConfig, guess: bool) -> FloatArray:
-    """(3 B,) each stop's best grid point (``guess``: see ``_base_terms``), on the first's line of travel for a
-    differential drive."""
+def _initial_guess(problem: PlacementProblem, config: PlacementConfig) -> FloatArray:
+    """(3 B,) each stop's best grid point, on the first's line of travel for a differential drive."""
     B = problem.bases
-    x0 = np.concatenate([_best_guess(problem, b, *_stop_functions(problem, b, config, None, guess), config) for b in range(B)])
+    x0 = np.concatenate([_best_guess(problem, b, *_stop_functions(problem, b, config, None), config) for b in range(B)])
     if problem.rolling:  # the other stops' guesses moved onto the first's line of travel
         heading = np.array([np.cos(x0[2]), np.sin(x0[2])])
         for b in range(1, B):
@@ -480,7 +471,7 @@ def place_base(problem: PlacementProblem, config: PlacementConfig = PlacementCon
     Each pose starts from the best point of a grid around its targets' centroid (the problem has one
     basin per side of the furniture), then all poses are refined together by IPOPT, first against the
     footprints near the guess (``PlacementConfig.active_radius``), grown until the solution clears them all;
-    where that fails, from a second guess (``_initial_guess``).
+    with stops to move between, first from the conservative placement (``PlacementProblem.stretch_sweep``).
 
     Raises:
         PlanningError: IPOPT finds no pose that satisfies the reach and clearance constraints; the message
@@ -489,19 +480,20 @@ def place_base(problem: PlacementProblem, config: PlacementConfig = PlacementCon
     B = problem.bases
     x = ca.MX.sym("x", 3 * B)
     full = _assemble(problem, x, config, None)
-    tried: list[FloatArray] = []
-    # First from guesses clear of the part over the whole time the base is nearest each stop (the conservative
-    # start: close to where one footprint per stop over its stretch put them), then, where IPOPT finds no placement
-    # from there, from guesses clear of it only while the base stands there (a fridge door swinging towards a
-    # side wall leaves the conservative first guess no room).
-    for guess in (True, False):
-        x0 = _initial_guess(problem, config, guess)
-        if any(np.array_equal(x0, other) for other in tried):
-            continue
-        tried.append(x0)
-        solution, cost, violation = _refine(problem, x, full, x0, config)
-        if violation <= config.violation_tolerance:
-            break
+    solution, cost, violation = np.zeros(3 * B), np.inf, np.inf
+    if problem.passing and problem.stretch_sweep:
+        # First the conservative placement: each stop clear of the part over its stretch and the next, whatever the
+        # base does on its way (where IPOPT found the placements of the scenes tuned on), then from there the
+        # placement itself. Started from the guesses with the base's way checked at once, IPOPT stuck in the door's
+        # sweep where the conservative placement is a placement (TIAGo, dark_rev_fridge_00_r1: 2 stops).
+        stretched = replace(problem, sweep=problem.stretch_sweep, passing=())
+        conservative = _refine(stretched, x, _assemble(stretched, x, config, None), _initial_guess(stretched, config), config)
+        if conservative[2] <= config.violation_tolerance:
+            solution, cost, violation = _refine(problem, x, full, conservative[0], config)
+    if violation > config.violation_tolerance:
+        # Each stop clear of the part only while the base stands there (a fridge door swinging towards a side wall
+        # leaves the conservative placement no room), the base's way between stops checked.
+        solution, cost, violation = _refine(problem, x, full, _initial_guess(problem, config), config)
     poses_out = solution.reshape(B, 3)
     poses_out[:, 2] = np.where(problem.base_free[2], np.angle(np.exp(1j * poses_out[:, 2])), poses_out[:, 2])
     distances = _distances(problem, poses_out)

@@ -93,3 +93,32 @@ def test_a_stop_keeps_clear_only_of_the_sweep_around_it(door) -> None:
     one, none = _sweep_windows(model, joint, STATES, 1, BAND, STEP)
     assert not none
     assert all(_inside(one[0], part_sweep_footprint(model, joint, [s], BAND)) for s in STATES)
+
+
+def test_a_placement_of_stops_keeps_the_base_clear_on_its_way(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The cabinet door's path placed from three stops (the robot's own plan needs one): the stops and the base's
+    way between them, where the door is meanwhile, clear every footprint by the clearance (less 1 mm: the
+    placement's violation bound)."""
+    import funrec_robot.plan as plan_module
+    from funrec_robot.plan import plan_interaction
+    from funrec_robot.task_sources import task_from_ground_truth
+    from funrec_robot.trajopt import PlacementConfig, exact_clearance, place_base
+
+    robot = load_robot(default_robot_path())
+    gt = write_gt_scene(REVOLUTE_CASE, tmp_path)
+    model = build_mujoco_model(robot, Path(gt) / "scene.xml")
+    calls: list[tuple] = []
+    pose = plan_module._placement_problem
+
+    def record(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
+        calls.append((args, kwargs))
+        return pose(*args, **kwargs)
+
+    monkeypatch.setattr(plan_module, "_placement_problem", record)
+    plan_interaction(robot, Path(gt) / "scene.xml", task_from_ground_truth(gt, "part_0", model), "open", model=model)
+    args, kwargs = next(call for call in calls if len(call[0][5]) > 3)  # the handle path's (not the reach check's)
+    problem = pose(*args[:6], 3, *args[7:], **kwargs)
+    assert problem.bases == 3 and problem.passing and len(problem.stretch_sweep) == 3
+    config = PlacementConfig()
+    placement = place_base(problem, config)
+    assert exact_clearance(placement.poses, problem) >= config.clearance - 1e-3
