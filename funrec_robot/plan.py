@@ -210,7 +210,8 @@ def _sweep_windows(
                     spans[at[0]] = min(spans[at[0], 0], a), max(spans[at[0], 1], c)
                 else:
                     footprint = footprint or _merged(part_sweep_footprint(model, joint, between(a, c), z_band))
-                    passing.append((w, footprint))
+                    if footprint:  # nothing of the part at the base's height (a wall cabinet): nothing to keep clear of
+                        passing.append((w, footprint))
     spans[:, 0] = np.minimum(spans[:, 0], knots)  # one state only (the reach check): the part where it is
     spans[:, 1] = np.maximum(spans[:, 1], knots)
     sweeps = [between(*span) for span in spans]

@@ -489,7 +489,14 @@ def place_base(problem: PlacementProblem, config: PlacementConfig = PlacementCon
         stretched = replace(problem, sweep=problem.stretch_sweep, passing=())
         conservative = _refine(stretched, x, _assemble(stretched, x, config, None), _initial_guess(stretched, config), config)
         if conservative[2] <= config.violation_tolerance:
-            solution, cost, violation = _refine(problem, x, full, conservative[0], config)
+            # Kept as it is where it also clears the base's way between stops (the placements tuned on stay where
+            # they were), else refined from there.
+            lbg, ubg = full.bounds()
+            g = np.asarray(ca.Function("g", [x], [ca.vertcat(*full.g)])(conservative[0]))
+            solution, violation = conservative[0], float(_violation(g, lbg, ubg)[0])
+            cost = float(ca.Function("f", [x], [full.cost])(solution))
+            if violation > config.violation_tolerance:
+                solution, cost, violation = _refine(problem, x, full, conservative[0], config)
     if violation > config.violation_tolerance:
         # Each stop clear of the part only while the base stands there (a fridge door swinging towards a side wall
         # leaves the conservative placement no room), the base's way between stops checked.
