@@ -42,7 +42,7 @@ from funrec.parts.articulation import (
     fit_part,
 )
 from funrec.parts.camera_lock import CameraLockConfig, lock_correction, unlock_camera
-from funrec.parts.depth_proposal import DepthProposal, DepthProposalConfig, proposal_tracks, propose_part
+from funrec.parts.depth_proposal import DepthProposal, DepthProposalConfig, proposal_tracks, propose_part, tracks_refute
 from funrec.parts.fragment_tracks import WindowTracks, join_windows, sub_capture, sub_trajectory, track_window
 from funrec.parts.fragments import FragmentConfig, find_fragments, fragments_from_spans, motion_span
 from funrec.parts.joint_type import JointTypeConfig, choose_joint_type
@@ -339,6 +339,8 @@ def _depth_part(window: WindowTracks, capture: Capture, trajectory: CameraTrajec
     if proposal is None:
         return None
     if proposal.rival_held and (rival is None or proposal.joint_type != rival.joint_type or proposal.joint_type == "revolute"):
+        return None
+    if rival is not None and tracks_refute(proposal, rival, window.tracks, config.depth_proposal):
         return None
     # depth's part replaces the tracks' part: its joint explains the surface that left clearly better, or it is
     # the tracks' own slide on that surface (see propose_part)
