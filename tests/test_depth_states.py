@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from types import SimpleNamespace
 
 import numpy as np
@@ -446,3 +447,34 @@ def test_the_tracks_slide_agreeing_with_a_depth_slide_stands_unless_the_other_is
     c, s = np.cos(np.deg2rad(30)), np.sin(np.deg2rad(30))
     off = c * normal + s * np.array([1.0, 0.0, 0.0])
     assert _slide_agreeing_with_tracks(within, [along, within], off) is within
+
+
+def test_tracks_that_saw_the_whole_pull_refute_a_turn_and_early_tracks_do_not() -> None:
+    """Depth's replacement of the tracks' part is refused where that part's tracks saw most of depth's
+    motion and depth's joint carries them decimetres from where they were seen (a drawer's textured
+    front over a 40 cm pull against a drop-down turn, as pri_drawer_02_r1); tracks that died in the
+    first tenth of the motion (a plain door's) refute nothing, and a joint that carries the tracks where
+    they were seen is never refused. Tolerances: the config's 3x / 3 cm, against 3 mm track noise."""
+    from funrec.parts.articulation import JointEvidence, PartEstimate
+    from funrec.parts.depth_proposal import DepthProposal, tracks_refute
+    from funrec.parts.point_tracks import PointTracks
+
+    rng = np.random.default_rng(3)
+    F, N = 30, 40
+    slide_axis = np.array([0.0, 0.0, -1.0])
+    pull = np.linspace(0.0, 0.4, F)
+    front = np.c_[rng.uniform(-0.3, 0.3, N), rng.uniform(-0.07, 0.07, N), np.full(N, 2.0)]
+    p_world = front[None] + pull[:, None, None] * slide_axis + rng.normal(0.0, 0.003, (F, N, 3))
+    tracks = PointTracks(p_world, np.zeros((F, N, 2)), np.ones((F, N), bool))
+    evidence = JointEvidence(0.01, 0.01, 0.005, 0.0, 0.0, 1.0, 0.01)
+    frames = np.arange(F)
+    slide = PartEstimate("prismatic", slide_axis, None, frames, pull, np.zeros(F, bool), np.arange(N), evidence, float(N), None)
+    turn_states = np.linspace(0.0, np.deg2rad(80.0), F)
+    turn = DepthProposal("revolute", np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.15, 2.1]), front, turn_states, 0.14, 0.57)
+    assert tracks_refute(turn, slide, tracks)
+    # the same tracks dying after 3 frames (10 % of the motion): they cannot speak for the rest
+    short = dataclasses.replace(slide, interpolated=frames >= 3)
+    assert not tracks_refute(turn, short, tracks)
+    # depth's own slide carries the tracks where they were seen: not refuted
+    depth_slide = DepthProposal("prismatic", slide_axis, None, front, pull, 0.10, 0.57)
+    assert not tracks_refute(depth_slide, slide, tracks)
