@@ -105,20 +105,21 @@ class DepthProposalConfig:
     """The tracks' part holds against depth's replacement when its tracks saw most of the motion
     that depth's joint reads (``track_veto_seen``) and depth's joint misplaces them
     (``track_veto_ratio``, ``track_veto_min_m``): depth scores the surface that left and can be fooled by
-    what that surface lands on (pri_drawer_02_r1, a bottom drawer: its front turned down onto the floor
-    cost 0.141 against its true slide's 0.194, and the slide's 72 tracks, seen over the whole pull, lay
-    10.4 cm from the turn and 0.6 cm from their slide). Tracks that died early (a plain door's, 8 % of
-    the motion on dark_rev_cabinet_left_00_r1) or never share frames with their first say nothing.
-    False: depth replaces on cost alone (ablation)."""
+    what that surface lands on. Measured (reseed 1): pri_drawer_02_r1, a bottom drawer, whose front
+    turned down onto the floor cost 0.141 against its true slide's 0.194, while the slide's 72 tracks,
+    seen over the whole pull, lay 10.4 cm from the turn and 0.6 cm from their slide; rev_fridge_01_r1,
+    whose 245 tracks lay 3.3 cm from depth's hinge (84 deg off) and 0.6 cm from their own. Tracks that
+    died early (a plain door's: 8 % of the motion on dark_rev_cabinet_left_00_r1, where depth's hinge
+    is right) or that no later frame sees say nothing. False: depth replaces on cost alone (ablation)."""
     track_veto_seen: float = 0.5
     """Share of depth's largest state that the tracks' trusted frames must reach."""
     track_veto_ratio: float = 3.0
-    """Depth's joint misplaces the tracks when their median distance from where it carries them is this
-    many times their distance from where their own joint does ..."""
-    track_veto_min_m: float = 0.03
-    """... and more than this, metres: the depth tolerance of the state search
-    (:attr:`~funrec.parts.depth_states.DepthStateConfig.depth_tolerance_m`), below which depth's
-    own fit cannot tell two joints apart."""
+    """Depth's joint misplaces the tracks when their median distance from where it carries them, over
+    the frames in which their own part had moved at least half its tracked travel, is this many times
+    their distance from where their own joint carries them ..."""
+    track_veto_min_m: float = 0.02
+    """... and more than this, metres: twice the largest own-joint distance measured on tracks that were
+    on the part (1.0 cm, person_elbow_pri_wardrobe_00_r1; 0.4-0.6 cm elsewhere)."""
     search: DepthStateConfig = DepthStateConfig(revolute_step_rad=np.deg2rad(2.0), prismatic_step_m=0.015)
     """The 1-DoF state search that scores the hypotheses: 2 deg and 1.5 cm steps move a front's
     points by less than the 3 cm depth tolerance, at a quarter of the fine search's cost."""
@@ -589,29 +590,34 @@ def _slide_agreeing_with_tracks(best: tuple, slides: list[tuple], rival_axis: Fl
 
 
 def track_misfit(joint_type: str, axis_world: FloatArray, pivot_world: FloatArray | None, states: FloatArray,
-                 tracks: PointTracks, members: IntArray, frames: IntArray, min_tracks: int = 6) -> float:
+                 tracks: PointTracks, members: IntArray, reference: IntArray, judged: IntArray,
+                 min_pairs: int = 6) -> float:
     """Median distance, metres, between where the part's point ``tracks`` (indices ``members``) were seen
-    in each of ``frames`` and where a joint (states (F,) over the tracks' frames) carries them from the
-    first of ``frames``: how far the tracks contradict that joint. NaN when no frame shares ``min_tracks``
-    visible tracks with the first.
+    in the ``judged`` frames and where a joint (states (F,) over the tracks' frames) carries them from
+    the first of the ``reference`` frames in which each was seen: how far the tracks contradict that
+    joint. NaN when fewer than ``min_pairs`` (track, judged frame) pairs exist.
 
     Depth scores a hypothesis on the surface that left and may be fooled by what the surface's
     points land on; the tracks saw where the part's textured points went. A plain door whose few
     tracks die early agrees with its true hinge over those frames; a drawer's tracks over its whole
     pull contradict a drop-down turn by decimetres."""
-    first = int(frames[0])
-    seen_first = tracks.visible[first, members]
+    reference = np.asarray(reference)
+    seen = tracks.visible[np.ix_(reference, members)]
+    has = seen.any(axis=0)
+    first = reference[np.argmax(seen, axis=0)]  # each member's first reference frame in which it was seen
     T = joint_transforms(joint_type, axis_world, pivot_world, states)
-    T_back = invert_transform(T[first])
     errors = []
-    for frame in frames[1:]:
-        both = members[seen_first & tracks.visible[frame, members]]
-        if len(both) < min_tracks:
-            continue
-        T_step = T[frame] @ T_back
-        predicted = tracks.p_world[first, both] @ T_step[:3, :3].T + T_step[:3, 3]
-        errors.append(np.linalg.norm(predicted - tracks.p_world[frame, both], axis=1))
-    return float(np.median(np.concatenate(errors))) if errors else float("nan")
+    for frame in np.unique(first[has]):
+        group = members[has & (first == frame)]
+        for later in np.asarray(judged)[np.asarray(judged) > frame]:
+            both = group[tracks.visible[later, group]]
+            if len(both) == 0:
+                continue
+            T_step = T[later] @ invert_transform(T[frame])
+            predicted = tracks.p_world[frame, both] @ T_step[:3, :3].T + T_step[:3, 3]
+            errors.append(np.linalg.norm(predicted - tracks.p_world[later, both], axis=1))
+    pairs = np.concatenate(errors) if errors else np.zeros(0)
+    return float(np.median(pairs)) if len(pairs) >= min_pairs else float("nan")
 
 
 def tracks_refute(proposal: DepthProposal, rival: PartEstimate, tracks: PointTracks,
@@ -627,10 +633,15 @@ def tracks_refute(proposal: DepthProposal, rival: PartEstimate, tracks: PointTra
     seen = float(np.abs(proposal.states[frames]).max()) / peak
     own_states = np.zeros(len(proposal.states))
     own_states[rival.frames] = rival.states
+    # judged where the tracks' part had moved by at least half its tracked travel: at rest every joint carries
+    # the tracks where they were (rev_fridge_01_r1: 4 mm from a hinge 84 deg off over all 81 tracked frames);
+    # each track from the first frame it was seen in, for tracks seeded as a door turns replace those that die
+    travel = np.abs(own_states[frames])
+    judged = frames[travel >= 0.5 * travel.max()]
     depth_misfit = track_misfit(proposal.joint_type, proposal.axis_world, proposal.pivot_world, proposal.states, tracks,
-                                rival.track_indices, frames)
+                                rival.track_indices, frames, judged)
     own_misfit = track_misfit(rival.joint_type, rival.axis_world, rival.pivot_world, own_states, tracks,
-                              rival.track_indices, frames)
+                              rival.track_indices, frames, judged)
     refuted = bool(seen >= config.track_veto_seen and depth_misfit > config.track_veto_min_m
                    and depth_misfit > config.track_veto_ratio * own_misfit)
     logger.info("depth proposal: the tracks' %s (%d tracks, frames %d-%d, %.0f %% of depth's motion) lie %.3f m from "
