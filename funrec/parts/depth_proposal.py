@@ -117,6 +117,11 @@ class DepthProposalConfig:
     """Depth's joint misplaces the tracks when their median distance from where it carries them, over
     the frames in which their own part had moved at least half its tracked travel, is this many times
     their distance from where their own joint carries them ..."""
+    track_veto_max_own_m: float = 0.01
+    """... and only tracks that their own joint carries within this, metres, speak for a rigid part:
+    a part's tracks measured 0.2-0.6 cm from their own joint on the reseed-1 bench; tracks that
+    moved with the arm or slid on a plain front, 1.3-2.2 cm (geo_island_pri_drawer_00_r1 and
+    mw_window_00_r1, whose depth slides were right: 8.1 deg and a lost window when such tracks held)."""
     track_veto_min_m: float = 0.02
     """... and more than this, metres: twice the largest own-joint distance measured on tracks that were
     on the part (1.0 cm, person_elbow_pri_wardrobe_00_r1; 0.4-0.6 cm elsewhere)."""
@@ -642,8 +647,8 @@ def tracks_refute(proposal: DepthProposal, rival: PartEstimate, tracks: PointTra
                                 rival.track_indices, frames, judged)
     own_misfit = track_misfit(rival.joint_type, rival.axis_world, rival.pivot_world, own_states, tracks,
                               rival.track_indices, frames, judged)
-    refuted = bool(seen >= config.track_veto_seen and depth_misfit > config.track_veto_min_m
-                   and depth_misfit > config.track_veto_ratio * own_misfit)
+    refuted = bool(seen >= config.track_veto_seen and own_misfit <= config.track_veto_max_own_m
+                   and depth_misfit > config.track_veto_min_m and depth_misfit > config.track_veto_ratio * own_misfit)
     logger.info("depth proposal: the tracks' %s (%d tracks, frames %d-%d, %.0f %% of depth's motion) lie %.3f m from "
                 "depth's %s and %.3f m from their own joint%s", rival.joint_type, len(rival.track_indices), frames[0],
                 frames[-1], 100 * seen, depth_misfit, proposal.joint_type, own_misfit,
