@@ -33,13 +33,15 @@ CUES_ABLATIONS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("no change left out of depth registration", ("--tracking-depth-odometry-changed-min-fraction", "0")),
     ("no arrived surfaces in the state search", ("--depth-proposal-arrival-points", "0")),
     ("no depth loop closures", ("--no-tracking-depth-loop-closures",)),
+    ("no veto of the tracks against depth's part", ("--no-depth-proposal-track-veto",)),
 )
 """The ablation set "cues": what each texture-independent cue buys (issue 12): depth registration
 where camera tracking has too few corners, parts proposed from depth where tracks give none (and
 challenging the tracks' part where they give one), the joint type decided in depth, hands detected before the parts,
 the dense-flow track cue (off by default, on here), the changed regions (a turning door) left out of a second
 depth registration, the surfaces that arrived in front of a span's first frame scored in its state search, and
-the keyframes' depth closing the camera's loops where ORB cannot."""
+the keyframes' depth closing the camera's loops where ORB cannot, and the tracks' veto of a depth part that
+misplaces tracks which saw the whole motion."""
 ABLATION_SETS: dict[str, tuple[tuple[str, tuple[str, ...]], ...]] = {
     "none": (), "standard": STANDARD_ABLATIONS, "cues": CUES_ABLATIONS, "all": STANDARD_ABLATIONS + CUES_ABLATIONS}
 """Named ablation sets selectable with BenchConfig.ablation_set."""
