@@ -24,6 +24,7 @@ from funrec_robot.scene import (
     part_geoms,
     part_joint,
     robot_bodies,
+    spring_load,
 )
 from funrec_robot.sim_model import apply_couplings, hand_bodies, robot_indices
 
@@ -73,9 +74,6 @@ def holding_load(robot: RobotDescription, model: mujoco.MjModel, q: FloatArray) 
     model's joint springs. Fetch's file puts a 10 N m/rad spring on its forearm roll: at -2.38 rad it takes 23.8
     of the joint's 29.35 N m, and a retreat timed at the full limits asked 33 N m."""
     indices = robot_indices(robot, model)
-    joints = model.dof_jntid[indices.dof]
-    stiffness = model.jnt_stiffness[joints]
-    spring_ref = model.qpos_spring[indices.qpos]
     data = mujoco.MjData(model)
     loads = np.empty((len(q), robot.nq))
     for k, qk in enumerate(np.atleast_2d(q)):
@@ -83,7 +81,7 @@ def holding_load(robot: RobotDescription, model: mujoco.MjModel, q: FloatArray) 
         qpos[indices.qpos] = qk
         qpos[indices.held_qpos] = indices.held_values
         apply_couplings(indices, qpos)
-        loads[k] = gravity_load(model, data, qpos)[indices.dof] + stiffness * (qk - spring_ref)
+        loads[k] = gravity_load(model, data, qpos)[indices.dof] + spring_load(model, qpos, indices.dof)
     return loads
 
 
@@ -98,10 +96,12 @@ def gravity_overload(
     joint: int | None = None,
 ) -> tuple[str, float, float] | None:
     """The first planning joint that must hold more than ``share`` of its effort limit at one of the (K, nq)
-    configurations, as (joint, load, limit) in N or N m; None if none does. The load is gravity on the robot
-    and, with a scene ``joint``, the part's weight on the hand (:func:`handle_load`): a drop-down door hangs on
-    the hand it is held by (TIAGo's arm_5_joint, 3.0 N m, held plain_rev_dishwasher_00's door at 3.2 N m with
-    11-22 N on the handle; a check of the arm's weight alone passed it)."""
+    configurations, as (joint, load, limit) in N or N m; None if none does. The load is gravity on the robot, the
+    robot's own joint springs (:func:`~funrec_robot.scene.spring_load`: Fetch's forearm roll, turned 4.4 rad by a
+    fridge door's swing, asked 44 N m of its 29.35 N m in the check of reseed-4 rev_fridge_00) and, with a scene
+    ``joint``, the part's weight on the hand (:func:`handle_load`): a drop-down door hangs on the hand it is held
+    by (TIAGo's arm_5_joint, 3.0 N m, held plain_rev_dishwasher_00's door at 3.2 N m with 11-22 N on the handle; a
+    check of the arm's weight alone passed it)."""
     indices = ik.indices
     data = mujoco.MjData(model)
     allowed = share * robot.effort_max
@@ -111,6 +111,7 @@ def gravity_overload(
         bias = full[indices.dof].copy()
         if robot.gravity_compensation:
             bias = bias * model.body_gravcomp[model.dof_bodyid[indices.dof]]
+        bias = bias + spring_load(model, qpos, indices.dof)
         load = np.abs(bias)
         if joint is not None:  # data's kinematics and bias are at qpos: the part's load read off them
             load = np.abs(bias + _handle_load_here(model, data, joint, int(indices.grasp_site),

@@ -21,7 +21,7 @@ from funrec.typed import FloatArray, IntArray
 from funrec_robot.budget import check_time_limit
 from funrec_robot.collision_limit import BoxedCollisionLimit, shared_boxes
 from funrec_robot.robot import RobotDescription
-from funrec_robot.scene import bodies_geoms, floor_geoms, gravity_load, subtree_bodies
+from funrec_robot.scene import bodies_geoms, floor_geoms, gravity_load, spring_load, subtree_bodies
 from funrec_robot.sim_model import ROBOT_PREFIX, apply_couplings, hand_bodies, robot_indices
 
 log = logging.getLogger(__name__)
@@ -157,7 +157,8 @@ class GravityLoadTask(mink.Task):
     would difference every joint of the scene too), projected onto the null space of ``frame_task`` over
     the ``planning`` dofs: to first order the task only moves the arm in ways that keep the grasp frame where
     it is, so it never pulls the hand off its target (a plain weighted task would). With gravity
-    compensation the load is ``qfrc_bias * body_gravcomp`` as in ``feasibility.gravity_overload``.
+    compensation the load is ``qfrc_bias * body_gravcomp`` as in ``feasibility.gravity_overload``; the joints' own
+    springs count in full, as there (Fetch's forearm roll: the task turns it back towards its spring's rest).
     """
 
     def __init__(
@@ -166,7 +167,8 @@ class GravityLoadTask(mink.Task):
     ) -> None:
         super().__init__(cost=np.full(len(dofs), cost), gain=1.0)
         self.model, self.dofs, self.qpos = model, np.asarray(dofs), np.asarray(qpos)
-        self.scale = 1.0 / np.asarray(limits, dtype=np.float64)
+        self.spring_scale = 1.0 / np.asarray(limits, dtype=np.float64)
+        self.scale = self.spring_scale
         if compensated:
             self.scale = self.scale * model.body_gravcomp[model.dof_bodyid[self.dofs]]
         self.free_share, self.step = free_share, step
@@ -174,7 +176,8 @@ class GravityLoadTask(mink.Task):
         self.data = mujoco.MjData(model)
 
     def _load(self, qpos: FloatArray) -> FloatArray:
-        return gravity_load(self.model, self.data, qpos)[self.dofs] * self.scale
+        return (gravity_load(self.model, self.data, qpos)[self.dofs] * self.scale
+                + spring_load(self.model, qpos, self.dofs) * self.spring_scale)
 
     def compute_error(self, configuration: mink.Configuration) -> FloatArray:
         load = self._load(configuration.q)

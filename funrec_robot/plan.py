@@ -513,8 +513,15 @@ def _search(
         (bases, rank, False, None, False) for bases, rank in attempts if rank < len(candidates)
     ]
     postures = list(robot.q_postures)
-    while pending and time.process_time() - cpu_started < config.time_budget:
+    # Attempts in a home posture left for the next one, unloading the arm through its null space instead, as
+    # (home, attempt): tried once the others are spent.
+    unload_in: list[tuple[FloatArray, tuple[int, int, bool, BasePlacement | None, bool]]] = []
+    while (pending or unload_in) and time.process_time() - cpu_started < config.time_budget:
         check_time_limit("the search over base stops and grasps")
+        if not pending:
+            home, attempt = unload_in.pop(0)
+            robot = replace(robot, q_home=home)
+            pending.append(attempt)
         bases, rank, unload, placement, room = pending.pop(0)
         grasp = candidates[rank]
         if placement is None:
@@ -538,6 +545,11 @@ def _search(
                 # 10 s budget, each at 63.0-63.9 N of its lift's 70 N).
                 break
             if postures:  # the robot's next home posture may hold the gripper with less load on the wrist
+                if not unload and config.ik.gravity_cost > 0.0:
+                    # Fetch's elbow-out posture missed reseed-4 rev_wall_cabinet_01's pre-grasp by 0.7 m from every
+                    # stop (the cabinet hangs high), after the home posture had reached it with the forearm roll
+                    # 0.8 N m over its share: that reach, unloaded, is kept for last.
+                    unload_in.append((robot.q_home, (bases, rank, True, placement, room)))
                 robot = replace(robot, q_home=postures.pop(0))
                 pending.insert(0, (bases, rank, False, None, room))
                 continue

@@ -223,6 +223,16 @@ def gravity_load(model: mujoco.MjModel, data: mujoco.MjData, qpos: npt.ArrayLike
     return data.qfrc_bias
 
 
+def spring_load(model: mujoco.MjModel, qpos: npt.ArrayLike, dofs: npt.ArrayLike) -> FloatArray:
+    """(n,) generalised force that holding the hinge or slide joints of ``dofs`` still at ``qpos`` takes against
+    their own springs (``stiffness`` in the model, towards ``springref``), N or N m: a servo carries it in full,
+    gravity compensation or not (Fetch's file springs its forearm roll at 10 N m/rad)."""
+    dofs = np.asarray(dofs, dtype=np.int64)
+    joints = model.dof_jntid[dofs]
+    adr = model.jnt_qposadr[joints]
+    return model.jnt_stiffness[joints] * (np.asarray(qpos, dtype=np.float64)[adr] - model.qpos_spring[adr])
+
+
 def static_footprint(
     model: mujoco.MjModel,
     exclude_geoms: npt.ArrayLike,

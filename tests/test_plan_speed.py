@@ -123,7 +123,8 @@ def test_grid_scored_by_its_reach_bound_first_picks_the_grids_best_point(problem
 
 def test_boxed_collision_limit_gives_minks_rows(robot, scene) -> None:
     """Random arm postures with the base scattered around the door: every constraint row mink's limit gives
-    (finite bound) is given, and no other; the box broad phase sends fewer pairs to the narrow phase."""
+    (finite bound) is given, and no other, its bound times the step time (ours bounds the step, mink's the step
+    over dt; no relaxation); the box broad phase sends fewer pairs to the narrow phase."""
     gt, model = scene
     joint = part_joint(model, "part_0")
     data = mujoco.MjData(model)
@@ -150,10 +151,12 @@ def test_boxed_collision_limit_gives_minks_rows(robot, scene) -> None:
             q[base[2]] = rng.uniform(-np.pi, np.pi)
             configuration = mink.Configuration(model)
             configuration.update(q)
-            ours = limit.compute_qp_inequalities(configuration, 0.02)
-            theirs = reference.compute_qp_inequalities(configuration, 0.02)
+            dt = 0.02
+            ours = limit.compute_qp_inequalities(configuration, dt)
+            theirs = reference.compute_qp_inequalities(configuration, dt)
             keep = np.isfinite(theirs.h)
-            expected = np.column_stack([theirs.G[keep], theirs.h[keep]])
+            assert reference.bound_relaxation == 0.0
+            expected = np.column_stack([theirs.G[keep], theirs.h[keep] * dt])
             got = np.zeros((0, model.nv + 1)) if ours.G is None else np.column_stack([ours.G, ours.h])
             assert got.shape == expected.shape
             np.testing.assert_allclose(got[np.lexsort(got.T[::-1])], expected[np.lexsort(expected.T[::-1])], atol=1e-12)
