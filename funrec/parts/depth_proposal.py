@@ -110,7 +110,9 @@ class DepthProposalConfig:
     seen over the whole pull, lay 10.4 cm from the turn and 0.6 cm from their slide; rev_fridge_01_r1,
     whose 245 tracks lay 3.3 cm from depth's hinge (84 deg off) and 0.6 cm from their own. Tracks that
     died early (a plain door's: 8 % of the motion on dark_rev_cabinet_left_00_r1, where depth's hinge
-    is right) or that no later frame sees say nothing. False: depth replaces on cost alone (ablation)."""
+    is right) or that no later frame sees say nothing, nor do a slide's tracks against depth's slide (settled on
+    depth's surface; vetoes there lost plain_pri_drawer_00 and _02 of the tuned 56). False: depth replaces on cost
+    alone (ablation)."""
     track_veto_seen: float = 0.5
     """Share of depth's largest state that the tracks' trusted frames must reach."""
     track_veto_ratio: float = 3.0
@@ -630,6 +632,11 @@ def tracks_refute(proposal: DepthProposal, rival: PartEstimate, tracks: PointTra
     """Whether the ``rival`` part's own ``tracks`` (same frames as the proposal's span) refute depth's
     ``proposal``: they saw most of its motion and it misplaces them (:attr:`DepthProposalConfig.track_veto`)."""
     if not config.track_veto:
+        return False
+    if rival.joint_type == proposal.joint_type == "prismatic":
+        # slide against slide is settled on depth's surface (see _slide_agreeing_with_tracks): tracks on a plain
+        # front slide with the arm or along its edges and their own slide misfits them by 0.8-1.4 cm, where a
+        # veto lost right depth slides (plain_pri_drawer_00 ADD 99 -> 42, plain_pri_drawer_02 lost; reseed 1 two more)
         return False
     frames = rival.frames[~rival.interpolated]
     peak = float(np.abs(proposal.states).max())
