@@ -608,22 +608,17 @@ def track_misfit(joint_type: str, axis_world: FloatArray, pivot_world: FloatArra
     points land on; the tracks saw where the part's textured points went. A plain door whose few
     tracks die early agrees with its true hinge over those frames; a drawer's tracks over its whole
     pull contradict a drop-down turn by decimetres."""
-    reference = np.asarray(reference)
+    reference, judged = np.asarray(reference), np.asarray(judged)
     seen = tracks.visible[np.ix_(reference, members)]
     has = seen.any(axis=0)
-    first = reference[np.argmax(seen, axis=0)]  # each member's first reference frame in which it was seen
+    members, first = members[has], reference[np.argmax(seen, axis=0)][has]  # each member's first reference frame seen in
+    if len(members) == 0 or len(judged) == 0:
+        return float("nan")
     T = joint_transforms(joint_type, axis_world, pivot_world, states)
-    errors = []
-    for frame in np.unique(first[has]):
-        group = members[has & (first == frame)]
-        for later in np.asarray(judged)[np.asarray(judged) > frame]:
-            both = group[tracks.visible[later, group]]
-            if len(both) == 0:
-                continue
-            T_step = T[later] @ invert_transform(T[frame])
-            predicted = tracks.p_world[frame, both] @ T_step[:3, :3].T + T_step[:3, 3]
-            errors.append(np.linalg.norm(predicted - tracks.p_world[later, both], axis=1))
-    pairs = np.concatenate(errors) if errors else np.zeros(0)
+    x_canonical = transform_points(invert_transform(T[first]), tracks.p_world[first, members])
+    predicted = np.stack([transform_points(T_world_part, x_canonical) for T_world_part in T[judged]])  # (J, M, 3)
+    pairs_seen = tracks.visible[np.ix_(judged, members)] & (judged[:, None] > first[None, :])
+    pairs = np.linalg.norm(predicted - tracks.p_world[np.ix_(judged, members)], axis=2)[pairs_seen]
     return float(np.median(pairs)) if len(pairs) >= min_pairs else float("nan")
 
 
