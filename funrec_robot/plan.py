@@ -58,7 +58,7 @@ from funrec_robot.task import ArticulationTask, path_states, resolve_target
 from funrec_robot.task_bounds import check_task_bounds
 from funrec_robot.task_sources import load_task, locate_scene
 from funrec_robot.trajopt import BasePlacement, PlacementProblem, place_base
-from funrec_robot.whole_body import RetreatTooShort, approach_move, whole_body_configurations
+from funrec_robot.whole_body import RetreatTooShort, approach_move, stop_position, whole_body_configurations
 
 log = logging.getLogger(__name__)
 
@@ -140,7 +140,7 @@ def _placement_problem(
 def _stop_weights(k: float, n: int, bases: int) -> FloatArray:
     """(bases,) weights of the stops' poses in the base's pose at (fractional) path state ``k`` of ``n``: the
     interpolation of ``whole_body.posture_along``, whose references the IK follows."""
-    position = min(max((k + 0.5) * bases / n - 0.5, 0.0), bases - 1.0)
+    position = min(max(float(stop_position(k, n, bases)), 0.0), bases - 1.0)
     w = np.zeros(bases)
     low = min(int(np.floor(position)), bases - 1)
     w[low] = 1.0 - (position - low)

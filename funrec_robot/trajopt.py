@@ -11,6 +11,7 @@ so the forward kinematics of the base (a planar rigid motion of the shoulder and
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import casadi as ca
@@ -440,12 +441,18 @@ def _initial_guess(problem: PlacementProblem, config: PlacementConfig) -> FloatA
     return x0
 
 
+def _violation_of(x: ca.MX, terms: _Terms) -> Callable[[FloatArray], float]:
+    """The largest violation of ``terms``' constraints at a solution of ``x``."""
+    g = ca.Function("g", [x], [ca.vertcat(*terms.g)])
+    lbg, ubg = terms.bounds()
+    return lambda solution: float(_violation(np.asarray(g(solution)), lbg, ubg)[0])
+
+
 def _refine(problem: PlacementProblem, x: ca.MX, full: _Terms, x0: FloatArray, config: PlacementConfig) -> tuple[FloatArray, float, float]:
     """IPOPT from ``x0`` against the footprints near it, grown until the solution clears them all
     (``PlacementConfig.active_radius``); returns the solution, its cost and its violation of ``full``."""
     B = problem.bases
-    full_g = ca.Function("g", [x], [ca.vertcat(*full.g)])
-    lbg, ubg = full.bounds()
+    full_violation = _violation_of(x, full)
     free = np.tile(problem.base_free, B)
     fixed = np.tile(problem.base_fixed, B)
     lbx = np.where(free, -np.inf, fixed)
@@ -457,7 +464,7 @@ def _refine(problem: PlacementProblem, x: ca.MX, full: _Terms, x0: FloatArray, c
         solution, cost, violation = _ipopt(x, full if last else _assemble(problem, x, config, near), start, lbx, ubx, config)
         if violation > config.violation_tolerance or last:
             break  # the footprints left out only add constraints: the full problem is no more feasible here
-        violation = float(_violation(np.asarray(full_g(solution)), lbg, ubg)[0])
+        violation = full_violation(solution)
         if violation <= config.violation_tolerance:
             break
         near = [np.vstack([near[b], solution[3 * b : 3 * b + 3]]) for b in range(B)]
@@ -491,9 +498,7 @@ def place_base(problem: PlacementProblem, config: PlacementConfig = PlacementCon
         if conservative[2] <= config.violation_tolerance:
             # Kept as it is where it also clears the base's way between stops (the placements tuned on stay where
             # they were), else refined from there.
-            lbg, ubg = full.bounds()
-            g = np.asarray(ca.Function("g", [x], [ca.vertcat(*full.g)])(conservative[0]))
-            solution, violation = conservative[0], float(_violation(g, lbg, ubg)[0])
+            solution, violation = conservative[0], _violation_of(x, full)(conservative[0])
             cost = float(ca.Function("f", [x], [full.cost])(solution))
             if violation > config.violation_tolerance:
                 solution, cost, violation = _refine(problem, x, full, conservative[0], config)

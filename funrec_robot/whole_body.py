@@ -9,6 +9,7 @@ from dataclasses import replace
 
 import mujoco
 import numpy as np
+import numpy.typing as npt
 
 from funrec.errors import PlanningError
 from funrec.typed import FloatArray
@@ -50,10 +51,17 @@ def _base_q(robot: RobotDescription, pose: FloatArray) -> FloatArray:
     return np.array([pose[{"x": 0, "y": 1, "yaw": 2}[m]] for m in robot.base_motions])
 
 
+def stop_position(k: npt.ArrayLike, n: int, bases: int) -> FloatArray:
+    """Where the base is between its stops at (fractional) path state ``k`` of ``n``, in stops (0 at the first,
+    ``bases - 1`` at the last; outside that range it stands at the nearest): stop b serves the samples around
+    position b. Its inverse, the path state at which the base stands at stop b: ``(b + 0.5) n / bases - 0.5``."""
+    return (np.asarray(k, dtype=np.float64) + 0.5) * bases / n - 0.5
+
+
 def posture_along(robot: RobotDescription, placement: BasePlacement, n: int) -> FloatArray:
-    """(n, nq) posture references: home arm, base interpolated between the planned stops."""
+    """(n, nq) posture references: home arm, base interpolated between the planned stops (:func:`stop_position`)."""
     B = len(placement.poses)
-    position = (np.arange(n) + 0.5) * B / n - 0.5  # stop b serves samples around position b
+    position = stop_position(np.arange(n), n, B)
     posture = np.tile(robot.q_home, (n, 1))
     base = np.array([_base_q(robot, p) for p in placement.poses])
     nb = len(robot.base_joints)
@@ -472,4 +480,4 @@ def _require(
         )
 
 
-__all__ = ["approach_move", "posture_along", "whole_body_configurations"]
+__all__ = ["approach_move", "posture_along", "stop_position", "whole_body_configurations"]
