@@ -1,5 +1,5 @@
-"""Tests of funrec.camera.features: sample_depth (the robust window depth against a direct nanmedian)
-and rigid_ransac (per-correspondence tolerances, outliers)."""
+"""Tests of funrec.camera.features: sample_depth (the robust window depth against a direct nanmedian),
+rigid_ransac (per-correspondence tolerances, outliers), the image noise estimate and the corners' SNR."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from funrec.camera.features import rigid_ransac, sample_depth, visible_offset_px
+from funrec.camera.features import corner_snr, image_noise_sigma, rigid_ransac, sample_depth, visible_offset_px
 from funrec.geometry.fitting import RigidFit
 from funrec.geometry.transforms import make_transform
 
@@ -80,3 +80,26 @@ def test_visible_offset_sees_across_an_edge_not_along_it() -> None:
         assert abs(seen_edge - expected_edge) < 0.05 * 3.0, (offset, seen_edge)
         assert np.linalg.norm(offset) * 0.7 < seen_corner <= np.linalg.norm(offset) + 1e-9, (offset, seen_corner)
     assert visible_offset_px(gray, np.zeros((0, 2)), np.zeros((0, 2)), 21).shape == (0,)
+
+
+def test_noise_is_measured_on_shaded_paint_and_bare_paint_patches_score_about_one() -> None:
+    """A plain wall: smooth shading, a few painted squares (real corners), and 8-bit noise of a known sigma.
+    The estimate must come within 10 % of the sigma (the shading and the squares' edges must not count as
+    noise); a patch of bare paint must score within the 0.5-2 that noise alone gives (its smaller
+    eigenvalue fluctuates around the noise's mean), and the squares' corners (30 grey levels of contrast, 9-10
+    at sigma 2.5) well above the tracker's floor of 3 (``TrackingConfig.min_corner_snr``)."""
+    rng = np.random.default_rng(0)
+    v, u = np.mgrid[0:240, 0:320].astype(np.float32)
+    image = 120.0 + 40.0 * (u / 320.0) + 15.0 * np.sin(v / 60.0)  # shading: no corner, no noise
+    for x in (60, 160, 260):
+        image[100:140, x - 20 : x + 20] -= 30.0  # squares 30 grey levels darker
+    for sigma in (1.0, 2.5):
+        gray = np.clip(np.rint(image + rng.normal(0.0, sigma, image.shape)), 0, 255).astype(np.uint8)
+        measured = image_noise_sigma(gray)
+        assert abs(measured - sigma) < 0.1 * sigma, (sigma, measured)
+        bare = np.array([[30.0, 30.0], [200.0, 40.0], [110.0, 200.0], [300.0, 210.0]])
+        corners = np.array([[40.0, 100.0], [180.0, 140.0], [280.0, 100.0]])
+        snr_bare = corner_snr(gray, bare, 21, measured)
+        snr_corners = corner_snr(gray, corners, 21, measured)
+        assert np.all((snr_bare > 0.5) & (snr_bare < 2.0)), snr_bare
+        assert np.all(snr_corners > 5.0), snr_corners

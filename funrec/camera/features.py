@@ -105,6 +105,68 @@ def track_klt(
     return uv1, ok
 
 
+def _structure_tensor(gray: UInt8Array, uv: FloatArray, window_px: int) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Entries (a, b, c) of the structure tensor ``[[a, b], [b, c]]`` (sum over the ``window_px`` patch of
+    the outer products of the 3x3 Sobel gradients, what KLT solves with) at the pixels nearest ``uv``."""
+    g = gray.astype(np.float32)
+    gx = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=3)
+    H, W = g.shape
+    col = np.clip(np.round(uv[:, 0]).astype(int), 0, W - 1)
+    row = np.clip(np.round(uv[:, 1]).astype(int), 0, H - 1)
+    window = (window_px, window_px)
+    a, b, c = (cv2.boxFilter(product, -1, window, normalize=False)[row, col].astype(np.float64)
+               for product in (gx * gx, gx * gy, gy * gy))
+    return a, b, c
+
+
+_SOBEL_NOISE_GAIN = 12.0
+"""Variance of a 3x3 Sobel derivative of white noise of unit variance: 1 + 4 + 1 + 1 + 4 + 1."""
+_NOISE_MASK = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], dtype=np.float32)
+"""Immerkaer's noise mask: the difference of two Laplacians, blind to planar and linear shading; white
+noise of unit variance gives a response of variance 36."""
+
+
+def image_noise_sigma(gray: UInt8Array) -> float:
+    """Standard deviation of the image's pixel noise, grey levels, measured on the image itself.
+
+    Immerkaer's estimator (Fast Noise Variance Estimation, CVIU 1996) with the median absolute response
+    instead of the mean, so that edges and texture (a minority of pixels) do not count as noise. Written
+    here because OpenCV has no noise estimator and scikit-image's wavelet one is not in the stack; it is one
+    convolution.
+    """
+    response = cv2.filter2D(gray.astype(np.float32), -1, _NOISE_MASK, borderType=cv2.BORDER_REFLECT)[1:-1, 1:-1]
+    # 1.4826 * MAD is sigma for a Gaussian; the mask's gain is sqrt(36) = 6.
+    return float(1.4826 * np.median(np.abs(response)) / 6.0)
+
+
+def corner_snr(gray: UInt8Array, uv: FloatArray, window_px: int, noise_sigma: float) -> FloatArray:
+    """How far each point's patch stands above the image noise: the structure tensor's smaller eigenvalue
+    (what pins a KLT track in its weakest direction) over what noise alone of ``noise_sigma`` puts there.
+
+    A patch of pure noise scores about 1 (measured 0.8-1.4): KLT on it follows the noise, which does not move
+    with the scene, and its round trip agrees, so the track stays near where it started and passes every
+    check (:attr:`funrec.camera.tracking.TrackingConfig.min_corner_snr`).
+
+    Args:
+        gray: (H, W) uint8 image.
+        uv: (N, 2) pixel positions.
+        window_px: side of the square patch, pixels (the KLT window).
+        noise_sigma: pixel noise, grey levels (:func:`image_noise_sigma`).
+
+    Returns:
+        (N,) ratios; inf where the image has no measurable noise.
+    """
+    if len(uv) == 0:
+        return np.zeros(0)
+    a, b, c = _structure_tensor(gray, uv, window_px)
+    lambda_min = 0.5 * (a + c) - np.sqrt(0.25 * (a - c) ** 2 + b**2)
+    noise_energy = window_px**2 * _SOBEL_NOISE_GAIN * noise_sigma**2
+    if noise_energy <= 0.0:
+        return np.full(len(uv), np.inf)
+    return lambda_min / noise_energy
+
+
 def visible_offset_px(gray: UInt8Array, uv: FloatArray, uv_predicted: FloatArray, window_px: int) -> FloatArray:
     """How much of each point's offset from a predicted position its image patch can show.
 
@@ -127,15 +189,7 @@ def visible_offset_px(gray: UInt8Array, uv: FloatArray, uv_predicted: FloatArray
     """
     if len(uv) == 0:
         return np.zeros(np.shape(uv_predicted)[:-1])
-    g = gray.astype(np.float32)
-    gx = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=3)
-    gy = cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=3)
-    H, W = g.shape
-    col = np.clip(np.round(uv[:, 0]).astype(int), 0, W - 1)
-    row = np.clip(np.round(uv[:, 1]).astype(int), 0, H - 1)
-    window = (window_px, window_px)
-    a, b, c = (cv2.boxFilter(product, -1, window, normalize=False)[row, col].astype(np.float64)
-               for product in (gx * gx, gx * gy, gy * gy))
+    a, b, c = _structure_tensor(gray, uv, window_px)
     lambda_max = 0.5 * (a + c) + np.sqrt(0.25 * (a - c) ** 2 + b ** 2)
     d = np.asarray(uv, dtype=np.float64) - uv_predicted
     seen = a * d[..., 0] ** 2 + 2.0 * b * d[..., 0] * d[..., 1] + c * d[..., 1] ** 2
@@ -487,7 +541,9 @@ def match_descriptors(
 __all__ = [
     "DepthNoiseModel",
     "depth_edges",
+    "corner_snr",
     "detect_corners",
+    "image_noise_sigma",
     "information_matrix",
     "lift",
     "mask_at",
