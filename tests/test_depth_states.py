@@ -453,7 +453,7 @@ def test_tracks_that_saw_the_whole_pull_refute_a_turn_and_early_tracks_do_not() 
     """Depth's replacement of the tracks' part is refused where that part's tracks saw most of depth's
     motion and depth's joint carries them decimetres from where they were seen (a drawer's textured
     front over a 40 cm pull against a drop-down turn, as pri_drawer_02_r1); tracks that died in the
-    first tenth of the motion (a plain door's) refute nothing, and a joint that carries the tracks where
+    first tenth of the motion (a plain door's) or were seeded after it refute nothing, and a joint that carries the tracks where
     they were seen is never refused. Tolerances: the config's 3x / 3 cm, against 3 mm track noise."""
     from funrec.parts.articulation import JointEvidence, PartEstimate
     from funrec.parts.depth_proposal import DepthProposal, tracks_refute
@@ -475,6 +475,11 @@ def test_tracks_that_saw_the_whole_pull_refute_a_turn_and_early_tracks_do_not() 
     # the same tracks dying after 3 frames (10 % of the motion): they cannot speak for the rest
     short = dataclasses.replace(slide, interpolated=frames >= 3)
     assert not tracks_refute(turn, short, tracks)
+    # tracks seeded once the part had stopped (the last tenth of the frames, depth's states at their peak)
+    # watched none of the motion, however far it had got (plain_rev_dishwasher_00_r2)
+    done = np.r_[turn_states[: F - 3], np.full(3, turn_states[-1])]
+    late = dataclasses.replace(slide, interpolated=frames < F - 3)
+    assert not tracks_refute(dataclasses.replace(turn, states=done), late, tracks)
     # depth's own slide carries the tracks where they were seen: not refuted
     depth_slide = DepthProposal("prismatic", slide_axis, None, front, pull, 0.10, 0.57)
     assert not tracks_refute(depth_slide, slide, tracks)

@@ -114,7 +114,11 @@ class DepthProposalConfig:
     depth's surface; vetoes there lost plain_pri_drawer_00 and _02 of the tuned 56). False: depth replaces on cost
     alone (ablation)."""
     track_veto_seen: float = 0.5
-    """Share of depth's largest state that the tracks' trusted frames must reach."""
+    """Share of depth's largest state that must have been travelled while the tracks watched (the range of
+    depth's states over the tracks' trusted frames): tracks seeded after the part had moved saw none of the
+    motion, however far it had got (plain_rev_dishwasher_00_r2: 10 tracks on the open door's frame and the
+    carcass, frames 42-58 of a drop-down door already down, held their spurious slide against depth's right
+    hinge when this was the largest state they reached)."""
     track_veto_ratio: float = 3.0
     """Depth's joint misplaces the tracks when their median distance from where it carries them, over
     the frames in which their own part had moved at least half its tracked travel, is this many times
@@ -637,7 +641,8 @@ def tracks_refute(proposal: DepthProposal, rival: PartEstimate, tracks: PointTra
     peak = float(np.abs(proposal.states).max())
     if len(frames) < 2 or peak <= 0.0:
         return False
-    seen = float(np.abs(proposal.states[frames]).max()) / peak
+    watched = proposal.states[frames]
+    seen = float(watched.max() - watched.min()) / peak  # the motion that happened while the tracks watched
     own_states = np.zeros(len(proposal.states))
     own_states[rival.frames] = rival.states
     # judged where the tracks' part had moved by at least half its tracked travel: at rest every joint carries
