@@ -229,6 +229,31 @@ def test_relocalises_after_losing_every_track(scenes, tmp_path):
     assert rmse_all < 0.015 and rot_all_deg < 2.0, (rmse_all, rot_all_deg)
 
 
+def test_a_part_that_jumps_from_the_prediction_does_not_take_the_camera_even_with_more_corners():
+    """60 corners on a drawer pulled 4 cm towards the camera, 40 on the room: the largest rigid motion is the
+    drawer's, and the camera's is the room's, which continues the predicted motion (1 cm sideways). The
+    room must win (``TrackingConfig.second_motion``); with the prediction on the drawer's motion, the drawer
+    does (the rule follows the prediction, not the larger or the smaller set)."""
+    rng = np.random.default_rng(1)
+    config = TrackingConfig()
+    p_keyframe = np.concatenate([rng.uniform([-1.0, -0.8, 2.0], [1.0, 0.8, 3.0], (40, 3)),  # room
+                                 rng.uniform([-0.3, -0.2, 1.2], [0.3, 0.2, 1.3], (60, 3))])  # drawer front
+    T_room = np.eye(4)
+    T_room[0, 3] = 0.01  # the camera moved 1 cm sideways: T_keyframe_camera
+    T_drawer = T_room.copy()
+    T_drawer[2, 3] += 0.04  # the drawer came 4 cm closer as well
+    p_camera = np.concatenate([p_keyframe[:40] - T_room[:3, 3], p_keyframe[40:] - T_drawer[:3, 3]])
+    p_camera += rng.normal(0.0, 0.001, p_camera.shape)
+    tolerance, weights = np.full(100, 0.006), np.ones(100)
+    largest = tracking.rigid_ransac(p_camera, p_keyframe, tolerance, weights, rng, 256)
+    assert largest.inliers[40:].all() and not largest.inliers[:40].any()  # the drawer outnumbers the room
+    camera = tracking._continuing_motion(largest, p_camera, p_keyframe, tolerance, weights, T_room, rng, config)
+    assert camera.inliers[:40].all() and not camera.inliers[40:].any()
+    assert np.allclose(camera.T_dst_src[:3, 3], T_room[:3, 3], atol=0.002)
+    kept = tracking._continuing_motion(largest, p_camera, p_keyframe, tolerance, weights, T_drawer, rng, config)
+    assert kept.inliers[40:].all()
+
+
 def test_untrackable_capture_raises_with_reason(tmp_path):
     intrinsics = CaptureIntrinsics(64, 48, 50.0, 50.0, 31.5, 23.5, depth_scale=1000.0, fps=15.0)
     writer = CaptureWriter(tmp_path / "flat", intrinsics)
