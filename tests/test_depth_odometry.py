@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from funrec.camera.depth_odometry import depth_view, register_depth
+from funrec.camera.depth_odometry import depth_view, register_depth, surface_agreement
 
 W, H = 320, 240
 K = np.array([[260.0, 0.0, 160.0], [0.0, 260.0, 120.0], [0.0, 0.0, 1.0]])
@@ -60,6 +60,22 @@ def test_room_corner_registers_to_a_millimetre():
     R_err = fit.T_target_source[:3, :3].T @ T_true[:3, :3]
     assert np.degrees(np.linalg.norm(Rotation.from_matrix(R_err).as_rotvec())) < 0.05
     assert fit.fitness > 0.9
+
+
+def test_surface_agreement_prefers_the_true_pose_to_one_a_few_centimetres_off():
+    """The room corner seen from two poses: the true relative pose puts nearly all of the source's surface on
+    the target's (noise-free depth: > 0.9, the rest leaves the view), a pose 5 cm off towards the back wall
+    almost none of the wall (< 0.5), which is what refutes a wrong ORB loop closure in camera tracking."""
+    T_world_a = _pose([0, 0, 0], [0, 0, 0])
+    T_world_b = _pose([0.01, -0.03, 0.005], [0.03, -0.01, 0.02])
+    depth_a, grey_a = _render(T_world_a, CORNER, _stripes)
+    depth_b, grey_b = _render(T_world_b, CORNER, _stripes)
+    usable = np.ones((H, W), bool)
+    target, source = depth_view(grey_a, depth_a, usable, K), depth_view(grey_b, depth_b, usable, K)
+    T_true = np.linalg.inv(T_world_a) @ T_world_b
+    T_off = _pose([0, 0, 0], [0.0, 0.0, 0.05]) @ T_true
+    assert surface_agreement(source, target, T_true) > 0.9
+    assert surface_agreement(source, target, T_off) < 0.5
 
 
 def test_plain_wall_is_refused():

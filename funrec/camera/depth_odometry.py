@@ -498,10 +498,7 @@ def register_depth(source: DepthView, target: DepthView, T_init: FloatArray,
     """T_target_source by coarse-to-fine projective point-to-plane ICP from ``T_init``; None when
     it is not trustworthy (too little of the frame on the keyframe's surface at the noise-derived
     distance, or a jump from the guess)."""
-    noise = config.depth_noise
-    sigma = math.hypot(*(noise.base_m + noise.quadratic_per_m * (z - noise.offset_m) ** 2
-                         for z in (source.median_depth_m, target.median_depth_m)))
-    final = max(config.min_distance_m, config.noise_sigmas * sigma)
+    final = _final_distance(source, target, config)
     if len(config.coarse_strides) != len(config.coarse_distances_m):
         raise ValueError("coarse_strides and coarse_distances_m must have one entry per coarse round")
     rounds = [(s, d) for s, d in zip(config.coarse_strides, config.coarse_distances_m, strict=True) if d > final]
@@ -529,9 +526,7 @@ def register_depth(source: DepthView, target: DepthView, T_init: FloatArray,
             or std_rad > config.max_std_rad):
         return None
     p_source, _ = source.points(config.final_stride, keep)
-    p, q, n, has = _associate(p_source, target, T, final, nearest=False)
-    r = np.full(len(p), np.inf)
-    r[has] = np.abs(np.einsum("ij,ij->i", p[has] - q[has], n[has]))
+    r = _surface_distances(p_source, target, T, final)
     on_surface = r < final
     fitness = float(on_surface.mean())
     if fitness < config.min_fitness:
@@ -539,4 +534,32 @@ def register_depth(source: DepthView, target: DepthView, T_init: FloatArray,
     return DepthFit(T, fitness, float(np.sqrt(np.mean(r[on_surface] ** 2))), final, p_source[on_surface])
 
 
-__all__ = ["DepthFit", "DepthOdometryConfig", "DepthView", "depth_view", "register_depth"]
+def _final_distance(source: DepthView, target: DepthView, config: DepthOdometryConfig) -> float:
+    """The final round's correspondence distance: ``noise_sigmas`` standard deviations of the depth noise of
+    both views at their median depths, at least ``min_distance_m``."""
+    noise = config.depth_noise
+    sigma = math.hypot(*(noise.base_m + noise.quadratic_per_m * (z - noise.offset_m) ** 2
+                         for z in (source.median_depth_m, target.median_depth_m)))
+    return max(config.min_distance_m, config.noise_sigmas * sigma)
+
+
+def _surface_distances(p_source: FloatArray, target: DepthView, T: FloatArray, distance_m: float) -> FloatArray:
+    """Point-to-plane distance of each source point, moved by ``T``, to the target pixel it projects to; inf
+    where it has none within ``distance_m``."""
+    p, q, n, has = _associate(p_source, target, T, distance_m, nearest=False)
+    r = np.full(len(p), np.inf)
+    r[has] = np.abs(np.einsum("ij,ij->i", p[has] - q[has], n[has]))
+    return r
+
+
+def surface_agreement(source: DepthView, target: DepthView, T_target_source: FloatArray,
+                      config: DepthOdometryConfig = DepthOdometryConfig()) -> float:  # noqa: B008
+    """Fraction of the source's usable points (final stride) that ``T_target_source`` puts on the target's
+    surface, within the noise-derived distance of :func:`register_depth`: how well a pose found otherwise
+    (ORB matches) explains the two views' depth."""
+    final = _final_distance(source, target, config)
+    p_source, _ = source.points(config.final_stride)
+    return float((_surface_distances(p_source, target, T_target_source, final) < final).mean())
+
+
+__all__ = ["DepthFit", "DepthOdometryConfig", "DepthView", "depth_view", "register_depth", "surface_agreement"]
