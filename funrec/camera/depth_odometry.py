@@ -19,7 +19,7 @@ vectorised gather per iteration.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from functools import cached_property
 
 import cv2
@@ -71,17 +71,6 @@ class DepthOdometryConfig:
     on geo_angled_rev_wall_00, a plain wall-cabinet front filling the view, where ICP started 2-5
     cm off along the front stayed 1.6-4.8 cm off. A direct edge alignment (Canny-VO's distance
     transform) on depth edges rather than grey edges. 0: no contour term (ablation)."""
-    coarse_contour_gain: float = 10.0
-    """The contour weight is this many times larger in the coarse rounds (the final round keeps
-    ``contour_weight``): there the nearest-neighbour association over 4-8 cm pulls points along the planes
-    they lie on, and a hundred-odd contour points were outweighed by those pulls, so a start 1-3 cm off
-    along a plain front ended 2-26 mm off (light_harsh_rev_wall_00_r2 frame 73 against 70: 6.6, 15.1, 26.3
-    mm from 1, 2, 3 cm; gain 10: 2.0-2.4 mm). In the final round the contours' pixel rounding would cost
-    accuracy (gain 10 in every round: median error 0.5 -> 0.7 mm). Measured on 11 captures of 8 families
-    (dark, plain, lighting, geometry, textured, assets, person; 20 pairs each 3 and 10 frames apart,
-    started 2 cm and 1 deg off the true pose, no masks): registrations more than 5 mm off 14 % -> 10 %,
-    p90 9.9 -> 5.1 mm, median 0.6 -> 0.5 mm, no capture worse; gain 30: 10 %, median 0.6. 1: one weight
-    in every round (ablation)."""
     min_contour_points: int = 20
     """Fewer source contour points than this: no contour term in that registration."""
     min_grey_spread: float = 0.01
@@ -461,8 +450,7 @@ def _rounds(source: DepthView, target: DepthView, T: FloatArray, rounds: list[tu
         p_contour = np.zeros((0, 3))
     for k, (stride, distance) in enumerate(rounds):
         final_round = k == len(rounds) - 1
-        round_config = config if final_round else replace(config, contour_weight=config.contour_weight * config.coarse_contour_gain)
-        result = _gauss_newton(*source.points(stride, keep), p_contour, target, T, distance, config.iterations, round_config,
+        result = _gauss_newton(*source.points(stride, keep), p_contour, target, T, distance, config.iterations, config,
                                grey_steps=not final_round or config.grey_in_final_round)
         if result is None:
             return None
