@@ -45,16 +45,21 @@ CORNER = [(np.array([0.0, 0.0, -1.0]), -2.0), (np.array([1.0, 0.0, 0.0]), 0.8), 
 """A back wall at z = 2 m, a side wall at x = 0.8 m and a floor at y = 0.6 m (camera looks along +z)."""
 
 
-def test_room_corner_registers_to_a_millimetre():
+def _corner_pair():
+    """The room corner seen from two poses 3.7 cm and 1.8 deg apart: (source view, target view, true
+    T_target_source)."""
     T_world_a = _pose([0, 0, 0], [0, 0, 0])
     T_world_b = _pose([0.01, -0.03, 0.005], [0.03, -0.01, 0.02])
     depth_a, grey_a = _render(T_world_a, CORNER, _stripes)
     depth_b, grey_b = _render(T_world_b, CORNER, _stripes)
     usable = np.ones((H, W), bool)
-    target, source = depth_view(grey_a, depth_a, usable, K), depth_view(grey_b, depth_b, usable, K)
+    return depth_view(grey_b, depth_b, usable, K), depth_view(grey_a, depth_a, usable, K), np.linalg.inv(T_world_a) @ T_world_b
+
+
+def test_room_corner_registers_to_a_millimetre():
+    source, target, T_true = _corner_pair()
     fit = register_depth(source, target, np.eye(4))  # the guess is 3.7 cm and 1.8 deg off
     assert fit is not None
-    T_true = np.linalg.inv(T_world_a) @ T_world_b
     # noise-free depth: 1 mm and 0.05 deg leave room for the 4-pixel sampling of the source
     assert np.linalg.norm(fit.T_target_source[:3, 3] - T_true[:3, 3]) < 1e-3
     R_err = fit.T_target_source[:3, :3].T @ T_true[:3, :3]
@@ -66,13 +71,7 @@ def test_surface_agreement_prefers_the_true_pose_to_one_a_few_centimetres_off():
     """The room corner seen from two poses: the true relative pose puts nearly all of the source's surface on
     the target's (noise-free depth: > 0.9, the rest leaves the view), a pose 5 cm off towards the back wall
     almost none of the wall (< 0.5), which is what refutes a wrong ORB loop closure in camera tracking."""
-    T_world_a = _pose([0, 0, 0], [0, 0, 0])
-    T_world_b = _pose([0.01, -0.03, 0.005], [0.03, -0.01, 0.02])
-    depth_a, grey_a = _render(T_world_a, CORNER, _stripes)
-    depth_b, grey_b = _render(T_world_b, CORNER, _stripes)
-    usable = np.ones((H, W), bool)
-    target, source = depth_view(grey_a, depth_a, usable, K), depth_view(grey_b, depth_b, usable, K)
-    T_true = np.linalg.inv(T_world_a) @ T_world_b
+    source, target, T_true = _corner_pair()
     T_off = _pose([0, 0, 0], [0.0, 0.0, 0.05]) @ T_true
     assert surface_agreement(source, target, T_true) > 0.9
     assert surface_agreement(source, target, T_off) < 0.5
