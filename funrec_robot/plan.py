@@ -611,7 +611,7 @@ def _search_or_cut(
     ``PlanConfig.path_cut_fraction`` of the way and then loses it cuts the path ``path_cut_back_rad`` (``_m``) before the state
     it missed, as the arm's reach does before the search (recorded in the plan: ``target_capped_by_reach``), and the
     search goes on with the shorter path. Not for a part that gravity would carry on from there (a drop-down door:
-    let go part-way, it falls onto the hand). Fetch followed fridge doors to 1.54-1.72 of their 1.8 rad and missed the
+    let go part-way, it falls onto the hand). Fetch followed fridge doors to 1.54-1.72 of their 1.72-1.86 rad and missed the
     handle by 10-17 mm from every base stop and grasp until the 10 s budget was spent."""
     config, states = handle.config, handle.states
     if handle.demo or not isinstance(target, str) or handle.reach_capped is not None or len(states) < 3:
