@@ -58,7 +58,13 @@ from funrec_robot.task import ArticulationTask, path_states, resolve_target
 from funrec_robot.task_bounds import check_task_bounds
 from funrec_robot.task_sources import load_task, locate_scene
 from funrec_robot.trajopt import BasePlacement, PlacementProblem, place_base
-from funrec_robot.whole_body import RetreatTooShort, approach_move, stop_position, whole_body_configurations
+from funrec_robot.whole_body import (
+    PathNotReached,
+    RetreatTooShort,
+    approach_move,
+    stop_position,
+    whole_body_configurations,
+)
 
 log = logging.getLogger(__name__)
 
@@ -382,33 +388,19 @@ def _handle_path(
         PlanningError: no grasp tilt keeps the handle path within the arm's vertical reach.
     """
     states, start_state, target_state, demo, capped = _requested_states(task, model, joint, target, start, config)
-    final_state = None  # where the part comes to rest after release, if not where the hand lets go
     r_max = geometry.reach * config.placement.r_max_fraction
     candidates = grasp_candidates(robot, task, states, geometry, r_max, config.grasp)
-    reach_capped = None
+    handle = _HandlePath(states, start_state, target_state, None, demo, capped, None, config, candidates)
     if not candidates and not demo and isinstance(target, str):
         # 'open' / 'close' ask for the whole range; a drop-down door's full range takes its handle below the
         # arm's reach. Open it as far as the arm reaches instead (recorded in the plan; a number is exact).
         r_cap = r_max * REACH_CAP_FRACTION
         reachable = _reachable_prefix(states, lambda prefix: bool(grasp_candidates(robot, task, prefix, geometry, r_cap, config.grasp)))
         if reachable >= 2:
-            reach_capped = {"state": float(states[reachable - 1]), "requested": target_state}
             log.warning("part '%s': the arm reaches the handle only up to %.3f %s of %.3f; planning that far",
                         task.part, states[reachable - 1], task.unit, target_state)
-            states, target_state = states[:reachable], float(states[reachable - 1])
-            # A part that gravity carries on to the requested state (a drop-down door) is let go there and
-            # falls open: the plan's target stays the requested one.
-            step = config.free_range_step if task.joint_type == "revolute" else config.free_range_step_m
-            if falls_to(model, joint, target_state, reach_capped["requested"], step, not config.fall_ignores_friction):
-                final_state = reach_capped["requested"]
-                reach_capped["released_to_fall"] = True
-                light = _held_prefix(robot, model, joint, task, geometry, states, config)
-                if light >= 2:
-                    states, target_state = states[:light], float(states[light - 1])
-                    reach_capped["state"] = target_state
-                # The gripper turns on the bar to let the door go sideways off a finger (GraspConfig.fall_roll).
-                config = replace(config, grasp=replace(config.grasp, fall_state=target_state))
-            candidates = grasp_candidates(robot, task, states, geometry, r_max, config.grasp)
+            handle = _cut_short(robot, model, joint, task, geometry, handle, reachable)
+    candidates, config = handle.candidates, handle.config
     if not candidates and not graspable_tilts(robot, task, geometry, config.grasp):
         raise Refusal(
             f"part '{task.part}': the gripper cannot take the handle at any tilt: {ungraspable_reason(robot, task, config.grasp)}"
@@ -418,7 +410,31 @@ def _handle_path(
             f"part '{task.part}': the handle path leaves the arm's vertical reach from the shoulder "
             f"({geometry.p_base_shoulder[2]:.2f} m high) whatever the grasp tilt"
         )
-    return _HandlePath(states, start_state, target_state, final_state, demo, capped, reach_capped, config, candidates)
+    return handle
+
+
+def _cut_short(robot: RobotDescription, model: mujoco.MjModel, joint: int, task: ArticulationTask, geometry: RobotGeometry,
+               handle: _HandlePath, reachable: int, by: str = "reach") -> _HandlePath:
+    """The handle path cut to its first ``reachable`` states, as far as the arm reaches (recorded in the plan). A part
+    that gravity carries on to the requested target (a drop-down door) is let go there and falls open: the plan's
+    target stays the requested one, and the hand holds it no further than it may rest on a finger (``_held_prefix``)."""
+    config, requested = handle.config, handle.target_state
+    states = handle.states[:reachable]
+    target_state, final_state = float(states[-1]), None
+    reach_capped: dict = {"state": target_state, "requested": requested, "by": by}
+    step = config.free_range_step if task.joint_type == "revolute" else config.free_range_step_m
+    if falls_to(model, joint, target_state, requested, step, not config.fall_ignores_friction):
+        final_state = requested
+        reach_capped["released_to_fall"] = True
+        light = _held_prefix(robot, model, joint, task, geometry, states, config)
+        if light >= 2:
+            states, target_state = states[:light], float(states[light - 1])
+            reach_capped["state"] = target_state
+        # The gripper turns on the bar to let the door go sideways off a finger (GraspConfig.fall_roll).
+        config = replace(config, grasp=replace(config.grasp, fall_state=target_state))
+    candidates = grasp_candidates(robot, task, states, geometry, geometry.reach * config.placement.r_max_fraction, config.grasp)
+    return replace(handle, states=states, target_state=target_state, final_state=final_state, reach_capped=reach_capped,
+                   config=config, candidates=candidates)
 
 
 def _held_prefix(robot: RobotDescription, model: mujoco.MjModel, joint: int, task: ArticulationTask, geometry: RobotGeometry,
@@ -487,10 +503,12 @@ def _search(
     geometry: RobotGeometry,
     handle: _HandlePath,
     cpu_started: float,
+    stop_at_path_miss: float | None = None,
 ) -> dict:
     """Try base stops (1, 2, ...) and grasp tilts, cheapest first, until base placement and whole-body IK
     succeed or the CPU time budget is spent; a gravity overload moves on to the robot's next home posture,
-    then to unloading the arm, then to grasps that point the gripper down.
+    then to unloading the arm, then to grasps that point the gripper down. With ``stop_at_path_miss`` (a path state),
+    the first attempt whose IK loses the handle on the path beyond that state ends the search (``PathNotReached``).
 
     Returns ``whole_body_configurations``' solution.
 
@@ -564,6 +582,8 @@ def _search(
             raise
         except PlanningError as exc:
             log.debug("part '%s', %d base stop(s), grasp %d: %s", task.part, bases, rank, exc)
+            if stop_at_path_miss is not None and isinstance(exc, PathNotReached) and _beyond(exc.state, stop_at_path_miss, handle):
+                raise
             errors.append((1, exc))
             if isinstance(exc, RetreatTooShort) and not room:
                 # This stop and every later one placed with the retreat's end in reach: a telescoping arm drawn in to
@@ -576,6 +596,46 @@ def _search(
         raise PlanningError(f"part '{task.part}': planning time budget exhausted")
     furthest = max(stage for stage, _ in errors)
     raise [exc for stage, exc in errors if stage == furthest][-1]
+
+
+def _beyond(state: float, mark: float, handle: _HandlePath) -> bool:
+    """Whether a path state lies at or beyond ``mark`` on the way from the handle path's start to its target."""
+    return (state - mark) * np.sign(handle.target_state - handle.start_state) >= 0.0
+
+
+def _search_or_cut(
+    robot: RobotDescription, model: mujoco.MjModel, joint: int, task: ArticulationTask, geometry: RobotGeometry,
+    handle: _HandlePath, target: str | float, cpu_started: float,
+) -> tuple[dict, _HandlePath]:
+    """``_search``; for 'open' / 'close', the first attempt whose IK follows the handle over at least
+    ``PlanConfig.path_cut_fraction`` of the way and then loses it cuts the path ``path_cut_back_rad`` (``_m``) before the state
+    it missed, as the arm's reach does before the search (recorded in the plan: ``target_capped_by_reach``), and the
+    search goes on with the shorter path. Not for a part that gravity would carry on from there (a drop-down door:
+    let go part-way, it falls onto the hand). Fetch followed fridge doors to 1.54-1.72 of their 1.72-1.86 rad and missed the
+    handle by 10-17 mm from every base stop and grasp until the 10 s budget was spent."""
+    config, states = handle.config, handle.states
+    if handle.demo or not isinstance(target, str) or handle.reach_capped is not None or len(states) < 3:
+        return _search(robot, model, joint, task, geometry, handle, cpu_started), handle
+    travel = handle.target_state - handle.start_state
+    k_late = int(np.searchsorted(np.abs(states - handle.start_state), config.path_cut_fraction * abs(travel)))
+    step = config.free_range_step if task.joint_type == "revolute" else config.free_range_step_m
+    if k_late >= len(states) - 1 or falls_to(model, joint, float(states[k_late]), handle.target_state, step, not config.fall_ignores_friction):
+        return _search(robot, model, joint, task, geometry, handle, cpu_started), handle
+    mark = float(states[k_late])
+    try:
+        return _search(robot, model, joint, task, geometry, handle, cpu_started, stop_at_path_miss=mark), handle
+    except PathNotReached as exc:
+        if not _beyond(exc.state, mark, handle):  # every attempt failed, the last one early on the path
+            raise
+        back = config.path_cut_back_rad if task.joint_type == "revolute" else config.path_cut_back_m
+        kept = max(2, int(np.searchsorted(np.abs(states - handle.start_state), abs(exc.state - handle.start_state) - back, side="right")))
+        shorter = _cut_short(robot, model, joint, task, geometry, handle, kept, "whole-body IK")
+        if shorter.final_state is not None or not shorter.candidates or falls_to(model, joint, shorter.target_state, handle.start_state, step):
+            # It would fall on, or back (a drop-down door closed part-way), once let go there.
+            return _search(robot, model, joint, task, geometry, handle, cpu_started), handle
+        log.warning("part '%s': the arm follows the handle only up to %.3f %s of %.3f; planning to %.3f %s",
+                    task.part, exc.state, task.unit, handle.target_state, shorter.target_state, task.unit)
+        return _search(robot, model, joint, task, geometry, shorter, cpu_started), shorter
 
 
 def _timed(
@@ -786,7 +846,7 @@ def _plan_interaction(robot: RobotDescription, scene_xml: str | Path, task: Arti
     if refusal is not None:
         raise Refusal(refusal)
     lap("path")
-    solution = _search(robot, model, joint, task, geometry, handle, cpu_started)
+    solution, handle = _search_or_cut(robot, model, joint, task, geometry, handle, target, cpu_started)
     lap("placement_ik")
     t, q, qd, gripper, part_state, segments = _timed(robot, model, task, handle, solution)
     lap("retime")

@@ -124,6 +124,15 @@ class PlanConfig:
     held; in their true scenes they fell to their stops, 0.5 rad beyond the planned target. The plan then keeps
     the base clear of the fall and turns the fingers off the bar whatever the friction; a door that friction does
     hold stays where it was let go, short of the plan's target."""
+    path_cut_fraction: float = 0.8
+    """'open' / 'close' of a part that does not fall on: where the whole-body IK follows the handle over this fraction
+    of the way and then loses it, the target is cut to short of there (``plan._search_or_cut``), as where the arm's
+    reach ends."""
+    path_cut_back_rad: float = float(np.deg2rad(3.0))
+    """... that far short of the first state missed, rad, so that the search's next attempts, placed for the shorter
+    path, do not meet the reach's edge again."""
+    path_cut_back_m: float = 0.02
+    """... the same for a prismatic part, m."""
     fall_rest_force: float = 20.0
     """Such a part is let go no further than where its weight presses on the finger it rests on with this
     force, N (nor further than the arm holds, ``feasibility.hand_capacity``): the hand then slides off the bar

@@ -5,6 +5,7 @@ joint motion collides), the handle path (refined until the joint interpolation s
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import replace
 
 import mujoco
@@ -44,6 +45,16 @@ log = logging.getLogger(__name__)
 class RetreatTooShort(PlanningError):
     """The handle path is planned, but the arm cannot back the gripper off the handle at its end: base placement
     left the arm no room along the approach there (``plan._search`` then places the base again with room for it)."""
+
+
+class PathNotReached(PlanningError):
+    """The whole-body IK lost the handle part-way along its path (``plan._search`` may let a part that gravity
+    carries on to its target go before there, as where the arm's reach ends)."""
+
+    def __init__(self, message: str, state: float) -> None:
+        super().__init__(message)
+        self.state = state
+        """The first path state not reached, rad or m."""
 
 
 def _base_q(robot: RobotDescription, pose: FloatArray) -> FloatArray:
@@ -257,7 +268,8 @@ def _from_pregrasp(
         if _tracked_all(again, len(states) - 1, config):
             grasp, path, tracked = turned, path_turned, again
             worst = _worst_target(tracked.position_error, tracked.orientation_error, config)
-    _require(tracked.position_error[worst], tracked.orientation_error[worst], config, "handle path", states[1 + worst], task)
+    _require(tracked.position_error[worst], tracked.orientation_error[worst], config, "handle path", states[1 + worst], task,
+             error=lambda message: PathNotReached(message, float(states[1 + worst])))
     q_path = np.vstack([q_grasp, tracked.q])
     states, path, q_path = _refine_path(ik, task, states, path, q_path, grasp, flip, holding, config)
     overload = gravity_overload(
@@ -468,16 +480,16 @@ def _worst_target(position_error: FloatArray, orientation_error: FloatArray, con
 
 def _require(
     e_pos: float, e_rot: float, config: PlanConfig, what: str, state: float, task: ArticulationTask,
-    tolerances: tuple[float, float] | None = None,
+    tolerances: tuple[float, float] | None = None, error: Callable[[str], PlanningError] = PlanningError,
 ) -> None:
-    """Raise unless the IK residuals are within ``tolerances`` (m, rad; default the tracking tolerances)."""
+    """Raise ``error`` unless the IK residuals are within ``tolerances`` (m, rad; default the tracking tolerances)."""
     position, orientation = tolerances or (config.track_position_tolerance, config.track_orientation_tolerance)
     if e_pos > position or e_rot > orientation:
-        raise PlanningError(
+        raise error(
             f"whole-body IK: {what} of part '{task.part}' at state {state:.3f} {task.unit} not reached: "
             f"{1000 * e_pos:.1f} mm, {np.rad2deg(e_rot):.1f} deg off (tolerance "
             f"{1000 * position:.0f} mm, {np.rad2deg(orientation):.0f} deg)"
         )
 
 
-__all__ = ["approach_move", "posture_along", "stop_position", "whole_body_configurations"]
+__all__ = ["PathNotReached", "approach_move", "posture_along", "stop_position", "whole_body_configurations"]
