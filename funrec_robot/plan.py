@@ -68,6 +68,12 @@ from funrec_robot.whole_body import (
 
 log = logging.getLogger(__name__)
 
+
+def _per_joint(task: ArticulationTask, revolute: float, prismatic: float) -> float:
+    """The setting for the task's joint type: ``revolute`` (rad) or ``prismatic`` (m)."""
+    return revolute if task.joint_type == "revolute" else prismatic
+
+
 REACH_CAP_FRACTION = 0.75
 """When 'open' / 'close' is capped at the arm's reach, the wrist stays within this fraction of the reach limit
 above or below the shoulder: at the limit itself the whole-body IK misses the handle by ~9 cm on the bench's
@@ -228,7 +234,7 @@ def _sweep_windows(
 def _demo_states(task: ArticulationTask, start: float, config: PlanConfig) -> FloatArray:
     """(N,) path states of the demonstration from ``start``: its states in order, thinned so that consecutive
     ones differ by at least ``demo_min_step`` (the hand's pauses and jitter are not path waypoints)."""
-    step = config.demo_min_step_rad if task.joint_type == "revolute" else config.demo_min_step_m
+    step = _per_joint(task, config.demo_min_step_rad, config.demo_min_step_m)
     kept = [start]
     for state in task.demo_states:
         if abs(state - kept[-1]) >= step:
@@ -343,9 +349,9 @@ def _requested_states(
     check_task_bounds(task, start_state, target_state)
     capped = None
     if isinstance(target, str) and target.strip().lower() in ("open", "close"):
-        margin = config.end_margin_rad if task.joint_type == "revolute" else config.end_margin_m
+        margin = _per_joint(task, config.end_margin_rad, config.end_margin_m)
         low, high = task.state_range
-        step = config.free_range_step if task.joint_type == "revolute" else config.free_range_step_m
+        step = _per_joint(task, config.free_range_step, config.free_range_step_m)
         blocked = first_blocked_state(model, joint, start_state, target_state, step)
         if blocked is not None:
             capped = blocked
@@ -353,7 +359,7 @@ def _requested_states(
         target_state = float(np.clip(target_state, low + margin, high - margin))
     if abs(target_state - start_state) < 1e-6:
         raise PlanningError(f"part '{task.part}' is already at the target state {target_state:.4g} {task.unit}")
-    step = config.free_range_step if task.joint_type == "revolute" else config.free_range_step_m
+    step = _per_joint(task, config.free_range_step, config.free_range_step_m)
     if falls_to(model, joint, target_state, start_state, step):
         # Gravity beats the joint's friction everywhere back to the start: let go at the target, the part returns
         # (a 5 kg sash on a frictionless slide, mw_window_01: every robot that lifted it saw it fall shut).
@@ -422,7 +428,7 @@ def _cut_short(robot: RobotDescription, model: mujoco.MjModel, joint: int, task:
     states = handle.states[:reachable]
     target_state, final_state = float(states[-1]), None
     reach_capped: dict = {"state": target_state, "requested": requested, "by": by}
-    step = config.free_range_step if task.joint_type == "revolute" else config.free_range_step_m
+    step = _per_joint(task, config.free_range_step, config.free_range_step_m)
     if falls_to(model, joint, target_state, requested, step, not config.fall_ignores_friction):
         final_state = requested
         reach_capped["released_to_fall"] = True
@@ -598,6 +604,12 @@ def _search(
     raise [exc for stage, exc in errors if stage == furthest][-1]
 
 
+def _states_within(handle: _HandlePath, travel: float, side: str = "left") -> int:
+    """How many of the handle path's states lie within ``travel`` (rad or m) of its start (``np.searchsorted``'s
+    ``side`` at exactly ``travel``)."""
+    return int(np.searchsorted(np.abs(handle.states - handle.start_state), travel, side=side))
+
+
 def _beyond(state: float, mark: float, handle: _HandlePath) -> bool:
     """Whether a path state lies at or beyond ``mark`` on the way from the handle path's start to its target."""
     return (state - mark) * np.sign(handle.target_state - handle.start_state) >= 0.0
@@ -617,8 +629,8 @@ def _search_or_cut(
     if handle.demo or not isinstance(target, str) or handle.reach_capped is not None or len(states) < 3:
         return _search(robot, model, joint, task, geometry, handle, cpu_started), handle
     travel = handle.target_state - handle.start_state
-    k_late = int(np.searchsorted(np.abs(states - handle.start_state), config.path_cut_fraction * abs(travel)))
-    step = config.free_range_step if task.joint_type == "revolute" else config.free_range_step_m
+    k_late = _states_within(handle, config.path_cut_fraction * abs(travel))
+    step = _per_joint(task, config.free_range_step, config.free_range_step_m)
     if k_late >= len(states) - 1 or falls_to(model, joint, float(states[k_late]), handle.target_state, step, not config.fall_ignores_friction):
         return _search(robot, model, joint, task, geometry, handle, cpu_started), handle
     mark = float(states[k_late])
@@ -627,8 +639,8 @@ def _search_or_cut(
     except PathNotReached as exc:
         if not _beyond(exc.state, mark, handle):  # every attempt failed, the last one early on the path
             raise
-        back = config.path_cut_back_rad if task.joint_type == "revolute" else config.path_cut_back_m
-        kept = max(2, int(np.searchsorted(np.abs(states - handle.start_state), abs(exc.state - handle.start_state) - back, side="right")))
+        back = _per_joint(task, config.path_cut_back_rad, config.path_cut_back_m)
+        kept = max(2, _states_within(handle, abs(exc.state - handle.start_state) - back, side="right"))
         shorter = _cut_short(robot, model, joint, task, geometry, handle, kept, "whole-body IK")
         if shorter.final_state is not None or not shorter.candidates or falls_to(model, joint, shorter.target_state, handle.start_state, step):
             # It would fall on, or back (a drop-down door closed part-way), once let go there.
@@ -827,7 +839,7 @@ def _plan_interaction(robot: RobotDescription, scene_xml: str | Path, task: Arti
         # The part is planned from where it rests in the scene: a part overlapping the scene at its recorded state
         # is pushed out by the contacts before the robot arrives (the check starts it there too).
         rest = resting_state(model, joint, task.state_current, config.settle_time, config.settle_speed)
-        tolerance = config.settle_tolerance_rad if task.joint_type == "revolute" else config.settle_tolerance_m
+        tolerance = _per_joint(task, config.settle_tolerance_rad, config.settle_tolerance_m)
         if abs(rest - task.state_current) > tolerance:
             log.warning("part '%s' does not rest at %.4f %s in the scene: it settles at %.4f; planning from there",
                         task.part, task.state_current, task.unit, rest)

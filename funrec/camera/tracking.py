@@ -11,7 +11,8 @@ import logging
 import math
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from functools import cache, partial
 
 import cv2
 import numpy as np
@@ -386,7 +387,7 @@ def _continuing_motion(fit: RigidFit, p_src: FloatArray, p_dst: FloatArray, tole
     inliers = np.zeros(len(p_src), dtype=bool)
     inliers[rest[second.inliers]] = True
     logger.debug("a second rigid motion (%d corners against %d) continues the camera's", inliers.sum(), fit.inliers.sum())
-    return RigidFit(second.T_dst_src, inliers, second.rms_m)
+    return replace(second, inliers=inliers)
 
 
 def _leaps(T_predicted: FloatArray, T: FloatArray, max_leap_m: float) -> bool:
@@ -429,15 +430,15 @@ def _register_orb(source: _Keyframe, target: _Keyframe, K: FloatArray, config: T
     return fit.T_dst_src, information_matrix(p_dst[fit.inliers])
 
 
-def _register_keyframe_depth(source: _Keyframe, target: _Keyframe, target_frame: _FrameInput, capture: Capture,
+def _register_keyframe_depth(source: _Keyframe, target: _Keyframe, target_frame: _FrameInput,
+                             read_source: Callable[[], _FrameInput], K: FloatArray,
                              config: TrackingConfig) -> tuple[FloatArray, FloatArray] | None:
     """T_target_source and its information matrix from the two keyframes' depth (the source's frame read
-    again: keyframes keep ORB features, not depth), started from their chained poses, or None."""
+    again by ``read_source``: keyframes keep ORB features, not depth), started from their chained poses, or None."""
     if not config.depth_odometry.enabled:
         return None
-    K = capture.intrinsics.K
     view_target = target_frame.depth_view(K, config.depth_odometry)
-    source_frame = _read_frame(capture, source.frame, config)
+    source_frame = read_source()
     view_source = source_frame.depth_view(K, config.depth_odometry)
     if view_target is None or view_source is None:
         return None
@@ -452,8 +453,9 @@ def _register_keyframe_depth(source: _Keyframe, target: _Keyframe, target_frame:
     return T_target_source_depth, information_matrix(fit.p_source_matched)
 
 
-def _depth_refutes_closure(source: _Keyframe, target: _Keyframe, target_frame: _FrameInput, capture: Capture,
-                           T_target_source: FloatArray, config: TrackingConfig) -> bool:
+def _depth_refutes_closure(source: _Keyframe, target: _Keyframe, target_frame: _FrameInput,
+                           read_source: Callable[[], _FrameInput], K: FloatArray, T_target_source: FloatArray,
+                           config: TrackingConfig) -> bool:
     """Whether the two keyframes' depth refutes an ORB closure (see ``TrackingConfig.verify_orb_closures``): it
     puts less of the source's surface on the target's than the chained poses do."""
     if not config.verify_orb_closures or not config.depth_odometry.enabled:
@@ -461,9 +463,8 @@ def _depth_refutes_closure(source: _Keyframe, target: _Keyframe, target_frame: _
     T_target_source_chain = invert_transform(target.T_world_camera) @ source.T_world_camera
     if _agree(T_target_source, T_target_source_chain, config):
         return False
-    K = capture.intrinsics.K
     view_target = target_frame.depth_view(K, config.depth_odometry)
-    view_source = _read_frame(capture, source.frame, config).depth_view(K, config.depth_odometry)
+    view_source = read_source().depth_view(K, config.depth_odometry)
     if view_target is None or view_source is None:
         return False
     closure, chain = (surface_agreement(view_source, view_target, T, config.depth_odometry)
@@ -611,11 +612,13 @@ def track_camera(capture: Capture, config: TrackingConfig = TrackingConfig(),
         depth_keyframe = frame
         closable = store if config.use_pose_graph else []
         for candidate in _loop_candidates(closable, current.T_world_camera, {parent}, config):
+            # the older keyframe's frame (its depth view built once) is read at most once, for both checks
+            read_source = cache(partial(_read_frame, capture, candidate.frame, config))
             result = _register_orb(candidate, current, K, config, rng)
-            if result is not None and _depth_refutes_closure(candidate, current, frame, capture, result[0], config):
+            if result is not None and _depth_refutes_closure(candidate, current, frame, read_source, K, result[0], config):
                 result = None
             if result is None and config.depth_loop_closures:
-                result = _register_keyframe_depth(candidate, current, frame, capture, config)
+                result = _register_keyframe_depth(candidate, current, frame, read_source, K, config)
             if result is not None:
                 edges.append((candidate.node, current.node, result[0], result[1], True))
         store.append(current)
