@@ -483,3 +483,37 @@ def test_tracks_that_saw_the_whole_pull_refute_a_turn_and_early_tracks_do_not() 
     # depth's own slide carries the tracks where they were seen: not refuted
     depth_slide = DepthProposal("prismatic", slide_axis, None, front, pull, 0.10, 0.57)
     assert not tracks_refute(depth_slide, slide, tracks)
+    # the same tracks a metre to the side, along the turn's axis (its misfit unchanged): not on depth's part, they
+    # say nothing about its joint (floor tracks 'moving' with the camera's error, person_sleeve_rev_cabinet_00_r3)
+    aside = PointTracks(p_world + np.array([1.0, 0.0, 0.0]), np.zeros((F, N, 2)), np.ones((F, N), bool))
+    assert not tracks_refute(turn, slide, aside)
+
+
+def test_mid_motion_frames_tell_a_slide_from_a_turn_that_lands_on_the_same_surface() -> None:
+    """A drawer's front turned down about its lower edge lies on the drawer's floor once the drawer is out:
+    at rest and at the end the turn explains depth as well as the slide or better, so its mean cost over all
+    frames wins (light_dim_pri_drawer_00_r3: 0.159 against 0.178). In mid-motion no surface holds the turned
+    front (0.307 against 0.214 there): the type is chosen on both means together. Made-up fits with those
+    costs; the choice must follow the mid-motion frames, and without any the overall mean."""
+    from funrec.parts.depth_proposal import _best_type, _joint_key
+    from funrec.parts.depth_states import DepthFit, motion_costs
+
+    F = 40
+    frames = np.arange(F)
+    slide_states = np.clip((frames - 10) / 20, 0, 1) * 0.38  # pulled over frames 10-30
+    turn_states = np.clip((frames - 14) / 6, 0, 1) * 1.85  # the turn jumps through its middle in 6 frames
+    slide_costs = np.where((frames > 10) & (frames < 30), 0.21, 0.17)
+    turn_costs = np.where((frames > 14) & (frames < 20), 0.50, np.where(frames > 10, 0.12, 0.17))
+    slide = DepthFit(slide_states, float(slide_costs.mean()), slide_costs)
+    turn = DepthFit(turn_states, float(turn_costs.mean()), turn_costs)
+    assert turn.cost < slide.cost
+    moving = motion_costs([slide, turn])
+    assert moving[0] < moving[1]
+    axis, pivot = np.array([0.0, 0.0, -1.0]), np.array([0.0, 0.3, 2.0])
+    best_of = {"prismatic": (slide.cost, "prismatic", axis, None), "revolute": (turn.cost, "revolute", axis, pivot)}
+    fits = {_joint_key("prismatic", axis, None): slide, _joint_key("revolute", axis, pivot): turn}
+    assert _best_type(best_of, fits)[1] == "prismatic"
+    # a part that never moved in either fit: no mid-motion frame, the overall mean decides
+    still = {key: DepthFit(np.zeros(F), fit.cost, fit.frame_costs) for key, fit in fits.items()}
+    assert np.isnan(motion_costs(list(still.values()))).all()
+    assert _best_type(best_of, still)[1] == "revolute"

@@ -29,7 +29,7 @@ from funrec.geometry.camera import backproject, project
 from funrec.geometry.joints import joint_transforms
 from funrec.geometry.transforms import invert_transform, transform_points
 from funrec.parts.articulation import PartEstimate
-from funrec.parts.depth_states import Arrival, DepthStateConfig, depth_fit, depth_states
+from funrec.parts.depth_states import Arrival, DepthFit, DepthStateConfig, depth_fit, depth_states, motion_costs
 from funrec.parts.point_tracks import PointTracks
 from funrec.typed import BoolArray, FloatArray, IntArray
 
@@ -131,6 +131,14 @@ class DepthProposalConfig:
     track_veto_min_m: float = 0.02
     """... and more than this, metres: twice the largest own-joint distance measured on tracks that were
     on the part (1.0 cm, person_elbow_pri_wardrobe_00_r1; 0.4-0.6 cm elsewhere)."""
+    track_veto_max_away_m: float = 0.1
+    """... and only tracks on depth's part speak against its joint: the median, over the tracks, of each
+    track's nearest approach to depth's part points (posed by depth's joint in the frames the track is seen)
+    must be within this, metres. A joint can be wrong about how its surface moved, not about where it
+    was: tracks on the part, or on what a drawer carries, came within 1.5-2.6 cm of it (rev_fridge_01_r1,
+    pri_drawer_02_r1, whose front depth turned down onto the floor). Tracks that are not on it say nothing
+    about its joint: 12 floor tracks 3 m away, 'moving' 4-10 cm with the camera's rotation error, lay a
+    median 31 cm from depth's right door and vetoed it (person_sleeve_rev_cabinet_00_r3)."""
     search: DepthStateConfig = DepthStateConfig(revolute_step_rad=np.deg2rad(2.0), prismatic_step_m=0.015)
     """The 1-DoF state search that scores the hypotheses: 2 deg and 1.5 cm steps move a front's
     points by less than the 3 cm depth tolerance, at a quarter of the fine search's cost."""
@@ -236,9 +244,13 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
     rival_cost = np.inf
     hypotheses = _hypotheses(points, normal, u_axis, v_axis, config.hinge_offsets_m)
 
+    fits: dict[tuple[float, ...], DepthFit] = {}  # every scored hypothesis's fit, by _joint_key
+
     def score(joint_type: str, axis: FloatArray, pivot: FloatArray | None) -> float:
-        _, cost = depth_fit(coarse, coarse_poses, joint_type, axis, pivot, hypothesis_points, search, coarse_arrival,
-                            hypothesis_normals)
+        fit = depth_fit(coarse, coarse_poses, joint_type, axis, pivot, hypothesis_points, search, coarse_arrival,
+                        hypothesis_normals)
+        fits[_joint_key(joint_type, axis, pivot)] = fit
+        cost = fit.cost
         if not np.isfinite(cost):
             return np.inf
         logger.debug("hypothesis %s axis %s pivot %s: cost %.3f", joint_type, axis.round(3),
@@ -275,7 +287,7 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
     # surface it uncovered: a plain panel looks the same wherever it stands in its plane but at its
     # edges (plain_pri_wardrobe_00: tilted out of the plane 12.9 deg off, turned within it 16.3, the
     # edge 0.3).
-    best = min(best_of.values(), key=lambda b: b[0]) if best_of else None
+    best = _best_type(best_of, fits)
     if best is None or not best[0] < config.min_gain * static:
         logger.info("depth proposal: best cost %s vs still %.3f: no joint explains the surface that left",
                     "-" if best is None else f"{best[0]:.3f}", static)
@@ -588,6 +600,29 @@ SLIDE_OVERRIDE_RATIO = 0.5
 and a wrong joint differ 2-5x once the part has moved (``rival_margin``)."""
 
 
+def _joint_key(joint_type: str, axis: FloatArray, pivot: FloatArray | None) -> tuple[float, ...]:
+    return (float(joint_type == "revolute"), *np.asarray(axis, float), *(() if pivot is None else np.asarray(pivot, float)))
+
+
+def _best_type(best_of: dict[str, tuple], fits: dict[tuple[float, ...], DepthFit]) -> tuple | None:
+    """The best hypothesis of the joint type whose best explains the depth best: by its mean cost averaged with its
+    mean cost over the frames in which either type's best is in mid-motion (:func:`motion_costs`), which tell a
+    turn from a slide where both land the surface on something at rest and at the end (a drawer pulled out and
+    its front turned down onto the drawer's floor). One type alone, or no mid-motion frame: by mean cost."""
+    if not best_of:
+        return None
+    candidates = sorted(best_of.values(), key=lambda b: b[0])
+    if len(candidates) < 2:
+        return candidates[0]
+    moving = motion_costs([fits[_joint_key(*b[1:])] for b in candidates])
+    if not np.isfinite(moving).all():
+        return candidates[0]
+    scores = [0.5 * (b[0] + m) for b, m in zip(candidates, moving, strict=True)]
+    logger.info("depth proposal: %s", ", ".join(f"{b[1]} {b[0]:.3f} overall, {m:.3f} in mid-motion"
+                                                for b, m in zip(candidates, moving, strict=True)))
+    return candidates[int(np.argmin(scores))]
+
+
 def _slide_agreeing_with_tracks(best: tuple, slides: list[tuple], rival_axis: FloatArray) -> tuple:
     """The tracks' slide agreeing with one of depth's slide hypotheses (``slides``: (cost, type,
     axis, pivot)) is two cues against one: that hypothesis stands unless ``best`` explains the
@@ -654,13 +689,30 @@ def tracks_refute(proposal: DepthProposal, rival: PartEstimate, tracks: PointTra
                                 rival.track_indices, frames, judged)
     own_misfit = track_misfit(rival.joint_type, rival.axis_world, rival.pivot_world, own_states, tracks,
                               rival.track_indices, frames, judged)
+    away = track_distance(proposal, tracks, rival.track_indices)
     refuted = bool(seen >= config.track_veto_seen and own_misfit <= config.track_veto_max_own_m
-                   and depth_misfit > config.track_veto_min_m and depth_misfit > config.track_veto_ratio * own_misfit)
-    logger.info("depth proposal: the tracks' %s (%d tracks, frames %d-%d, %.0f %% of depth's motion) lie %.3f m from "
-                "depth's %s and %.3f m from their own joint%s", rival.joint_type, len(rival.track_indices), frames[0],
-                frames[-1], 100 * seen, depth_misfit, proposal.joint_type, own_misfit,
-                ": the tracks' part holds" if refuted else "")
+                   and depth_misfit > config.track_veto_min_m and depth_misfit > config.track_veto_ratio * own_misfit
+                   and away <= config.track_veto_max_away_m)
+    logger.info("depth proposal: the tracks' %s (%d tracks, frames %d-%d, %.0f %% of depth's motion, %.3f m from its "
+                "surface) lie %.3f m from depth's %s and %.3f m from their own joint%s", rival.joint_type,
+                len(rival.track_indices), frames[0], frames[-1], 100 * seen, away, depth_misfit, proposal.joint_type,
+                own_misfit, ": the tracks' part holds" if refuted else "")
     return refuted
+
+
+def track_distance(proposal: DepthProposal, tracks: PointTracks, members: IntArray, samples: int = 15) -> float:
+    """Median, over the ``members`` of ``tracks``, of each track's nearest approach, metres, to the proposal's
+    points posed by its joint in the frames the track is seen in (at most ``samples`` of them, evenly spread):
+    whether the tracks are on the part depth proposes at all (inf without a seen member)."""
+    T = joint_transforms(proposal.joint_type, proposal.axis_world, proposal.pivot_world, proposal.states)
+    nearest = []
+    for member in members:
+        frames = np.flatnonzero(tracks.visible[:, member])
+        frames = frames[np.unique(np.linspace(0, len(frames) - 1, min(samples, len(frames))).astype(int))]
+        posed = np.stack([transform_points(T[f], proposal.p_world) for f in frames])  # (S, M, 3)
+        if len(frames):
+            nearest.append(np.linalg.norm(posed - tracks.p_world[frames, member][:, None], axis=2).min())
+    return float(np.median(nearest)) if nearest else float("inf")
 
 
 def _hypotheses(p: FloatArray, normal: FloatArray, u_axis: FloatArray, v_axis: FloatArray,
@@ -678,5 +730,5 @@ def _hypotheses(p: FloatArray, normal: FloatArray, u_axis: FloatArray, v_axis: F
     return out
 
 
-__all__ = ["DepthProposal", "DepthProposalConfig", "Joint", "propose_part", "proposal_tracks", "track_misfit",
-           "tracks_refute"]
+__all__ = ["DepthProposal", "DepthProposalConfig", "Joint", "propose_part", "proposal_tracks", "track_distance",
+           "track_misfit", "tracks_refute"]
