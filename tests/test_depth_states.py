@@ -496,7 +496,7 @@ def test_mid_motion_frames_tell_a_slide_from_a_turn_that_lands_on_the_same_surfa
     front (0.307 against 0.214 there): the type is chosen on both means together. Made-up fits with those
     costs; the choice must follow the mid-motion frames, and without any the overall mean."""
     from funrec.parts.depth_proposal import _best_type, _joint_key
-    from funrec.parts.depth_states import DepthFit, motion_costs
+    from funrec.parts.depth_states import DepthFit, DepthStateConfig, motion_costs
 
     F = 40
     frames = np.arange(F)
@@ -512,8 +512,13 @@ def test_mid_motion_frames_tell_a_slide_from_a_turn_that_lands_on_the_same_surfa
     axis, pivot = np.array([0.0, 0.0, -1.0]), np.array([0.0, 0.3, 2.0])
     best_of = {"prismatic": (slide.cost, "prismatic", axis, None), "revolute": (turn.cost, "revolute", axis, pivot)}
     fits = {_joint_key("prismatic", axis, None): slide, _joint_key("revolute", axis, pivot): turn}
-    assert _best_type(best_of, fits)[1] == "prismatic"
+    search = DepthStateConfig()
+    assert _best_type(best_of, fits, search)[1] == "prismatic"
     # a part that never moved in either fit: no mid-motion frame, the overall mean decides
     still = {key: DepthFit(np.zeros(F), fit.cost, fit.frame_costs) for key, fit in fits.items()}
     assert np.isnan(motion_costs(list(still.values()))).all()
-    assert _best_type(best_of, still)[1] == "revolute"
+    assert _best_type(best_of, still, search)[1] == "revolute"
+    # a slide whose states run to the end of the search grid (0.9 m) is no motion to compare: the overall mean decides
+    runaway = dict(fits)
+    runaway[_joint_key("prismatic", axis, None)] = DepthFit(slide_states / 0.38 * 0.9, slide.cost, slide_costs)
+    assert _best_type(best_of, runaway, search)[1] == "revolute"

@@ -287,7 +287,7 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
     # surface it uncovered: a plain panel looks the same wherever it stands in its plane but at its
     # edges (plain_pri_wardrobe_00: tilted out of the plane 12.9 deg off, turned within it 16.3, the
     # edge 0.3).
-    best = _best_type(best_of, fits)
+    best = _best_type(best_of, fits, search)
     if best is None or not best[0] < config.min_gain * static:
         logger.info("depth proposal: best cost %s vs still %.3f: no joint explains the surface that left",
                     "-" if best is None else f"{best[0]:.3f}", static)
@@ -600,21 +600,35 @@ SLIDE_OVERRIDE_RATIO = 0.5
 and a wrong joint differ 2-5x once the part has moved (``rival_margin``)."""
 
 
+def _at_search_limit(fit: DepthFit, joint_type: str, search: DepthStateConfig) -> bool:
+    """Whether a fit's states reach the last state of the search grid (``depth_states``' grid, to half a step)."""
+    revolute = joint_type == "revolute"
+    step = search.revolute_step_rad if revolute else search.prismatic_step_m
+    limit = search.revolute_limit_rad if revolute else search.prismatic_limit_m
+    return bool(np.abs(fit.states).max(initial=0.0) >= (np.ceil(limit / step) - 0.5) * step)
+
+
 def _joint_key(joint_type: str, axis: FloatArray, pivot: FloatArray | None) -> tuple[float, ...]:
     return (float(joint_type == "revolute"), *np.asarray(axis, float), *(() if pivot is None else np.asarray(pivot, float)))
 
 
-def _best_type(best_of: dict[str, tuple], fits: dict[tuple[float, ...], DepthFit]) -> tuple | None:
+def _best_type(best_of: dict[str, tuple], fits: dict[tuple[float, ...], DepthFit], search: DepthStateConfig
+               ) -> tuple | None:
     """The best hypothesis of the joint type whose best explains the depth best: by its mean cost averaged with its
     mean cost over the frames in which either type's best is in mid-motion (:func:`motion_costs`), which tell a
     turn from a slide where both land the surface on something at rest and at the end (a drawer pulled out and
-    its front turned down onto the drawer's floor). One type alone, or no mid-motion frame: by mean cost."""
+    its front turned down onto the drawer's floor). One type alone, no mid-motion frame, or a best whose states
+    reach the end of the ``search`` grid (no state there explains the frames, so its 'motion' is not one: a
+    wall cabinet's slide run to 0.9 m while the camera drifted 10 cm, geo_island_rev_wall_00_r4): by mean cost."""
     if not best_of:
         return None
     candidates = sorted(best_of.values(), key=lambda b: b[0])
     if len(candidates) < 2:
         return candidates[0]
-    moving = motion_costs([fits[_joint_key(*b[1:])] for b in candidates])
+    chosen = [fits[_joint_key(*b[1:])] for b in candidates]
+    if any(_at_search_limit(fit, b[1], search) for fit, b in zip(chosen, candidates, strict=True)):
+        return candidates[0]
+    moving = motion_costs(chosen)
     if not np.isfinite(moving).all():
         return candidates[0]
     scores = [0.5 * (b[0] + m) for b, m in zip(candidates, moving, strict=True)]
