@@ -356,7 +356,12 @@ def _requested_states(
         if blocked is not None:
             capped = blocked
             low, high = (max(low, blocked[0]), high) if blocked[0] < start_state else (low, min(high, blocked[0]))
-        target_state = float(np.clip(target_state, low + margin, high - margin))
+        short = float(np.clip(target_state, low + margin, high - margin))
+        # A part that its weight carries from there to its stop (a drop-down door) comes to rest at the stop: held
+        # short of it, the hand is dragged there, turned about the bar by the door (Spot's jaw, opening, then swung
+        # 14 mm into rev_oven_00_r3's panel). It is opened to the stop itself.
+        if blocked is not None or not falls_to(model, joint, short, target_state, step):
+            target_state = short
     if abs(target_state - start_state) < 1e-6:
         raise PlanningError(f"part '{task.part}' is already at the target state {target_state:.4g} {task.unit}")
     step = _per_joint(task, config.free_range_step, config.free_range_step_m)

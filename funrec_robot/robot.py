@@ -175,6 +175,9 @@ class RobotDescription:
     spot; the planner keeps it still at its stop while the arm works (see ``plan``)."""
     base_height: float = 0.0
     """Height of the root body above the base frame (the floor), m."""
+    base_lift: bool = False
+    """A vertical slide ``base_lift`` carries the root body above the planar base joints (a legged body's height,
+    ``robot_yaml.BASE_LIFT_JOINT``); it is a planning joint, the first of the arm's (a lift)."""
     ee_body: str | None = None
     """Body the end-effector site was added to, if the model has no site for it."""
     masses: dict[str, float] = field(default_factory=dict)
@@ -466,6 +469,7 @@ def load_robot(path: str | Path) -> RobotDescription:
         planar_base=file.planar_base,
         drive=file.drive,
         base_height=file.base_height,
+        base_lift=file.base_lift,
         ee_body=file.ee_body,
         masses=dict(file.masses),
         couplings=_couplings(file),
