@@ -342,8 +342,9 @@ class _HandlePath:
 def _requested_states(
     task: ArticulationTask, model: mujoco.MjModel, joint: int, target: str | float, start: float | None, config: PlanConfig
 ) -> tuple[FloatArray, float, float, bool, tuple[float, str] | None]:
-    """Path states from the start to the target, the target stopped short of the range ends and of where the
-    part first runs into the scene; returns states, start, target, demo, and where it was blocked."""
+    """Path states from the start to the target, the target stopped short of the range ends (but for a part its
+    weight carries to the end: there) and of where the part first runs into the scene; returns states, start, target,
+    demo, and where it was blocked."""
     start_state = task.state_current if start is None else float(start)
     target_state = resolve_target(task, target)
     check_task_bounds(task, start_state, target_state)

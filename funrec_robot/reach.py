@@ -164,9 +164,9 @@ def floor_reach_gap(
 def lifted(robot: RobotDescription, geometry: RobotGeometry, height: float, limit_margin: float) -> RobotDescription:
     """The robot with its lift's home position putting the shoulder ``LIFT_ABOVE_HANDLE_M`` above a handle at
     ``height``, within the lift's range less ``limit_margin`` (the IK's) and ``LIFT_MARGIN_M``; the robot
-    unchanged without a lift, and with a body lift (``base.lift``): a legged body stands at its standing height and
-    crouches only where the whole-body IK needs it to (lowered for every low handle, Spot's jaw closed on drawers'
-    and microwaves' bars with 51-55 N, against 37-41 N standing)."""
+    unchanged without a lift, and with a body lift (``base.lift``): a legged body starts at its standing height, and
+    the whole-body IK crouches it (started at the handle's height, Spot crouched for every drawer below its
+    shoulder)."""
     if geometry.lift_range is None or robot.base_lift:
         return robot
     down, up = geometry.lift_range

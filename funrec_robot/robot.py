@@ -12,7 +12,10 @@ Keys (paths are relative to the YAML file, or ``package://<python package>/<path
   bodies and anything welded to them) is ignored. Optional if the model has one top-level body.
   The base frame is this body's frame at zero base joint positions.
 - ``base``: ``{x: JOINT, y: JOINT, yaw: JOINT}``, any subset (none: fixed base). x and y are slides
-  along the root body's x and y axes, yaw a hinge about its z axis that comes after them in the chain.
+  along the root body's x and y axes, yaw a hinge about its z axis that comes after them in the chain. Or
+  ``{planar: true}``: the model's free joint replaced by such joints (``robot_yaml.PLANAR_JOINTS``), with
+  ``height`` (the root body above the floor), ``drive`` and ``lift: true`` (a vertical slide
+  ``robot_yaml.BASE_LIFT_JOINT`` after them, a legged body's height, planned as the first arm joint).
 - ``arm_joints``: hinge or slide joints the planner moves, base to hand.
 - ``gripper``: ``joints`` (fingers), optional ``actuator``, and ``open`` / ``closed`` commands
   (the actuator's control value, or without an actuator the finger joint position).
