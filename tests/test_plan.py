@@ -344,6 +344,9 @@ def test_open_takes_a_part_its_weight_carries_to_its_stop_all_the_way(friction: 
     states, _, target_state, _, blocked = _requested_states(task, model, 0, "open", None, PlanConfig())
     assert blocked is None
     assert target_state == pytest.approx(expected, abs=1e-9) and states[-1] == pytest.approx(expected, abs=1e-9)
+    # where the arm does not reach the stop, the planner asks for the margin again (plan._handle_path)
+    short = _requested_states(task, model, 0, "open", None, PlanConfig(), to_stop=False)[2]
+    assert short == pytest.approx(1.5 - np.deg2rad(3.0), abs=1e-9)
 
 
 def test_the_approach_tested_for_collisions_is_the_one_the_plan_moves_along(robot, revolute) -> None:
