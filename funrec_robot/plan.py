@@ -340,10 +340,12 @@ class _HandlePath:
 
 
 def _requested_states(
-    task: ArticulationTask, model: mujoco.MjModel, joint: int, target: str | float, start: float | None, config: PlanConfig
+    task: ArticulationTask, model: mujoco.MjModel, joint: int, target: str | float, start: float | None, config: PlanConfig,
+    to_stop: bool = True,
 ) -> tuple[FloatArray, float, float, bool, tuple[float, str] | None]:
-    """Path states from the start to the target, the target stopped short of the range ends and of where the
-    part first runs into the scene; returns states, start, target, demo, and where it was blocked."""
+    """Path states from the start to the target, the target stopped short of the range ends (but, with ``to_stop``,
+    for a part its weight carries to the end: there) and of where the part first runs into the scene; returns states,
+    start, target, demo, and where it was blocked."""
     start_state = task.state_current if start is None else float(start)
     target_state = resolve_target(task, target)
     check_task_bounds(task, start_state, target_state)
@@ -356,7 +358,12 @@ def _requested_states(
         if blocked is not None:
             capped = blocked
             low, high = (max(low, blocked[0]), high) if blocked[0] < start_state else (low, min(high, blocked[0]))
-        target_state = float(np.clip(target_state, low + margin, high - margin))
+        short = float(np.clip(target_state, low + margin, high - margin))
+        # A part that its weight carries from there to its stop (a drop-down door) comes to rest at the stop: held
+        # short of it, the hand is dragged there, turned about the bar by the door (Spot's jaw, opening, then swung
+        # 14 mm into rev_oven_00_r3's panel). It is opened to the stop itself.
+        if not to_stop or blocked is not None or not falls_to(model, joint, short, target_state, step):
+            target_state = short
     if abs(target_state - start_state) < 1e-6:
         raise PlanningError(f"part '{task.part}' is already at the target state {target_state:.4g} {task.unit}")
     step = _per_joint(task, config.free_range_step, config.free_range_step_m)
@@ -396,6 +403,15 @@ def _handle_path(
     states, start_state, target_state, demo, capped = _requested_states(task, model, joint, target, start, config)
     r_max = geometry.reach * config.placement.r_max_fraction
     candidates = grasp_candidates(robot, task, states, geometry, r_max, config.grasp)
+    if not candidates:
+        short = _requested_states(task, model, joint, target, start, config, to_stop=False)
+        if short[2] != target_state:
+            # The stop lies beyond the arm's reach where ``end_margin`` short of it does not: the door is opened that
+            # far, as before, not cut short at the reach far below and let go to fall (Spot, reseed-3
+            # light_harsh_rev_dishwasher_00: cut at 0.58 rad, the door fell onto its wrist, 136 N).
+            short_candidates = grasp_candidates(robot, task, short[0], geometry, r_max, config.grasp)
+            if short_candidates:
+                (states, start_state, target_state, demo, capped), candidates = short, short_candidates
     handle = _HandlePath(states, start_state, target_state, None, demo, capped, None, config, candidates)
     if not candidates and not demo and isinstance(target, str):
         # 'open' / 'close' ask for the whole range; a drop-down door's full range takes its handle below the

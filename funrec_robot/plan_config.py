@@ -30,7 +30,8 @@ class PlanConfig:
     retreat_distance: float = 0.12
     """... and leaves it along the approach by this much (or as far as it can, see ``min_retreat_clearance``), m."""
     end_margin_rad: float = float(np.deg2rad(3.0))
-    """'open' and 'close' stop this short of a revolute part's range ends (never drive it into its stop), rad."""
+    """'open' and 'close' stop this short of a revolute part's range ends (never drive it into its stop), rad; not
+    where the part's weight carries it on to the end (a drop-down door: it comes to rest there anyway)."""
     end_margin_m: float = 0.02
     """... and this short of a prismatic part's, m."""
     pregrasp_dwell: float = 0.3

@@ -164,8 +164,10 @@ def floor_reach_gap(
 def lifted(robot: RobotDescription, geometry: RobotGeometry, height: float, limit_margin: float) -> RobotDescription:
     """The robot with its lift's home position putting the shoulder ``LIFT_ABOVE_HANDLE_M`` above a handle at
     ``height``, within the lift's range less ``limit_margin`` (the IK's) and ``LIFT_MARGIN_M``; the robot
-    unchanged without a lift."""
-    if geometry.lift_range is None:
+    unchanged without a lift, and with a body lift (``base.lift``): a legged body starts at its standing height, and
+    the whole-body IK crouches it (started at the handle's height, Spot crouched for every drawer below its
+    shoulder)."""
+    if geometry.lift_range is None or robot.base_lift:
         return robot
     down, up = geometry.lift_range
     inside = limit_margin + LIFT_MARGIN_M

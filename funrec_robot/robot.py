@@ -12,7 +12,10 @@ Keys (paths are relative to the YAML file, or ``package://<python package>/<path
   bodies and anything welded to them) is ignored. Optional if the model has one top-level body.
   The base frame is this body's frame at zero base joint positions.
 - ``base``: ``{x: JOINT, y: JOINT, yaw: JOINT}``, any subset (none: fixed base). x and y are slides
-  along the root body's x and y axes, yaw a hinge about its z axis that comes after them in the chain.
+  along the root body's x and y axes, yaw a hinge about its z axis that comes after them in the chain. Or
+  ``{planar: true}``: the model's free joint replaced by such joints (``robot_yaml.PLANAR_JOINTS``), with
+  ``height`` (the root body above the floor), ``drive`` and ``lift: true`` (a vertical slide
+  ``robot_yaml.BASE_LIFT_JOINT`` after them, a legged body's height, planned as the first arm joint).
 - ``arm_joints``: hinge or slide joints the planner moves, base to hand.
 - ``gripper``: ``joints`` (fingers), optional ``actuator``, and ``open`` / ``closed`` commands
   (the actuator's control value, or without an actuator the finger joint position).
@@ -175,6 +178,9 @@ class RobotDescription:
     spot; the planner keeps it still at its stop while the arm works (see ``plan``)."""
     base_height: float = 0.0
     """Height of the root body above the base frame (the floor), m."""
+    base_lift: bool = False
+    """A vertical slide ``base_lift`` carries the root body above the planar base joints (a legged body's height,
+    ``robot_yaml.BASE_LIFT_JOINT``); it is a planning joint, the first of the arm's (a lift)."""
     ee_body: str | None = None
     """Body the end-effector site was added to, if the model has no site for it."""
     masses: dict[str, float] = field(default_factory=dict)
@@ -466,6 +472,7 @@ def load_robot(path: str | Path) -> RobotDescription:
         planar_base=file.planar_base,
         drive=file.drive,
         base_height=file.base_height,
+        base_lift=file.base_lift,
         ee_body=file.ee_body,
         masses=dict(file.masses),
         couplings=_couplings(file),

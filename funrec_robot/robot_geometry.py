@@ -142,7 +142,10 @@ def _measure(robot: RobotDescription, model: mujoco.MjModel) -> RobotGeometry:
     R_world_grasp = data.site_xmat[indices.grasp_site].reshape(3, 3)
 
     collides = (model.geom_contype != 0) | (model.geom_conaffinity != 0)
-    arm_bodies = subtree_bodies(model, int(model.jnt_bodyid[arm[0]]))
+    # A lift on the root body itself (a legged body's height, ``base_lift``) carries the whole robot: the arm starts
+    # at the first joint on a body of its own.
+    root = int(indices.bodies[0])
+    arm_bodies = subtree_bodies(model, next(int(model.jnt_bodyid[j]) for j in arm if int(model.jnt_bodyid[j]) != root))
     all_geoms = np.flatnonzero(collides & np.isin(model.geom_bodyid, indices.bodies))
     arm_geoms = all_geoms[np.isin(model.geom_bodyid[all_geoms], arm_bodies)]
     body_geoms = np.setdiff1d(all_geoms, arm_geoms)

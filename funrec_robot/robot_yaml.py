@@ -33,6 +33,11 @@ MODELS_ENV = "FUNREC_ROBOT_MODELS"
 PLANAR_JOINTS = {"x": "base_x", "y": "base_y", "yaw": "base_yaw"}
 """Joints funrec_robot adds to the root body in place of its free joint for ``base: {planar: true}``."""
 
+BASE_LIFT_JOINT = "base_lift"
+"""Vertical slide funrec_robot adds to the root body after ``PLANAR_JOINTS`` for ``base: {planar: true, lift: true}``
+(a legged body that crouches or rises): the file lists it first in ``arm_joints``, so the planner treats it as a
+lift (``reach.lifted``) and the whole-body IK moves it with the arm."""
+
 DRIVES = ("holonomic", "differential")
 """How a base moves: 'holonomic' (any planar motion), 'differential' (wheels: only along its heading, and
 turning on the spot)."""
@@ -113,6 +118,8 @@ class RobotFile:
     """One of ``DRIVES``."""
     base_height: float = 0.0
     """Height of the root body's frame above the floor with a planar base, m (a legged body standing)."""
+    base_lift: bool = False
+    """A planar base whose body also moves up and down on ``BASE_LIFT_JOINT``."""
     ee_body: str | None = None
     """Body the end-effector site ``ee_site`` is added to (at its origin), for models without a site."""
     gripper_extra_actuators: tuple[str, ...] = ()
@@ -245,7 +252,7 @@ def read_robot_yaml(path: str | Path) -> RobotFile:
     missing = [key for key in _REQUIRED if key not in top]
     if missing:
         raise r.fail("(top level)", f"missing key {format_names(missing)}")
-    base = r.mapping(top.get("base"), "base", (*BASE_MOTIONS, "planar", "drive", "height"))
+    base = r.mapping(top.get("base"), "base", (*BASE_MOTIONS, "planar", "drive", "height", "lift"))
     planar = base.get("planar", False)
     if not isinstance(planar, bool):
         raise r.fail("base.planar", f"expected true or false, got {planar!r}")
@@ -257,6 +264,11 @@ def read_robot_yaml(path: str | Path) -> RobotFile:
         raise r.fail("base", f"planar: true adds the base joints {format_names(PLANAR_JOINTS.values())}; do not name x, y or yaw as well")
     if planar:
         motions = dict(PLANAR_JOINTS)
+    lift = base.get("lift", False)
+    if not isinstance(lift, bool):
+        raise r.fail("base.lift", f"expected true or false, got {lift!r}")
+    if lift and not planar:
+        raise r.fail("base.lift", "a body lift is added to a planar base only: set planar: true")
     gripper = r.mapping(top["gripper"], "gripper", ("joints", "actuator", "open", "closed", "open_width", "release_gap", "release_sweep",
                                                         "release_time"))
     for key in ("joints", "open", "closed"):
@@ -320,6 +332,7 @@ def read_robot_yaml(path: str | Path) -> RobotFile:
         planar_base=planar,
         drive=drive,
         base_height=r.number(base.get("height", 0.0), "base.height", 0.0),
+        base_lift=lift,
         ee_body=ee_body,
         gripper_extra_actuators=actuators[1:],
         masses=r.number_map(simulation.get("masses"), "simulation.masses", positive=True),
@@ -359,6 +372,6 @@ def _postures(r: _Reader, value: object) -> tuple[dict[str, float], ...]:
 
 
 __all__ = [
-    "BASE_MOTIONS", "DRIVES", "EE_SITE_SUFFIX", "MODELS_ENV", "MODELS_SCHEME", "PACKAGE_SCHEME", "PLANAR_JOINTS", "RobotFile",
+    "BASE_LIFT_JOINT", "BASE_MOTIONS", "DRIVES", "EE_SITE_SUFFIX", "MODELS_ENV", "MODELS_SCHEME", "PACKAGE_SCHEME", "PLANAR_JOINTS", "RobotFile",
     "ServoEntry", "read_robot_yaml",
 ]

@@ -79,10 +79,18 @@ def _T_to_pos_quat(T: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
     return T[:3, 3].copy(), np.roll(quat_xyzw, 1)  # MuJoCo wants quat_wxyz
 
 
+def _limited(joint: mujoco.MjsJoint) -> bool:
+    """Whether MuJoCo limits the joint's range (``limited`` true, or auto with a range set)."""
+    return joint.limited == mujoco.mjtLimited.mjLIMITED_TRUE or (
+        joint.limited == mujoco.mjtLimited.mjLIMITED_AUTO and joint.range[0] < joint.range[1]
+    )
+
+
 def _prepare_robot_spec(robot: RobotDescription) -> mujoco.MjSpec:
     """The robot's model file as a spec, with servos, damping, gravity compensation and grasp site added."""
     try:
-        spec = robot_spec(robot.model_path, robot.root_body, robot.planar_base, robot.ee_body, robot.ee_site, robot.drop_actuators)
+        spec = robot_spec(robot.model_path, robot.root_body, robot.planar_base, robot.ee_body, robot.ee_site, robot.drop_actuators,
+                          robot.base_lift)
     except ValueError as exc:
         raise RobotDescriptionError(robot.model_path, f"MuJoCo cannot load the model: {exc}") from exc
     for name, damping in robot.damping.items():
@@ -90,14 +98,18 @@ def _prepare_robot_spec(robot: RobotDescription) -> mujoco.MjSpec:
         coefficients = np.zeros_like(np.atleast_1d(spec.joint(name).damping))
         coefficients[0] = damping
         spec.joint(name).damping = coefficients if np.ndim(spec.joint(name).damping) else damping
+    for name, lower, upper in zip(robot.joint_names, robot.q_min, robot.q_max):
+        joint = spec.joint(name)
+        if not _limited(joint) and np.isfinite(lower) and np.isfinite(upper):
+            # A joint the model leaves free whose range the robot file gives (``base_lift``, which funrec_robot adds):
+            # the IK's limits and the servo's command range are the joint's range in the model.
+            joint.range = [float(lower), float(upper)]
+            joint.limited = mujoco.mjtLimited.mjLIMITED_TRUE
     for name, gains in robot.servos.items():
         joint = spec.joint(name)
         actuator = spec.add_actuator(name=f"{name}_servo", target=name, trntype=mujoco.mjtTrn.mjTRN_JOINT)
         actuator.set_to_position(kp=gains.kp, kv=gains.kv)
-        limited = joint.limited == mujoco.mjtLimited.mjLIMITED_TRUE or (
-            joint.limited == mujoco.mjtLimited.mjLIMITED_AUTO and joint.range[0] < joint.range[1]
-        )
-        if limited:
+        if _limited(joint):
             actuator.ctrlrange = joint.range
             actuator.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
         actuator.forcerange = [-gains.force, gains.force]
@@ -142,10 +154,11 @@ def _grasp_site_pose(robot: RobotDescription) -> tuple[str, FloatArray, FloatArr
     site's pose in its body whatever orientation syntax the file used."""
     path = Path(robot.model_path)
     key = (str(path), path.stat().st_mtime_ns if path.is_file() else 0, robot.root_body, repr(robot.planar_base), robot.ee_body,
-           robot.ee_site, tuple(robot.drop_actuators), np.asarray(robot.T_ee_grasp).tobytes())
+           robot.ee_site, tuple(robot.drop_actuators), robot.base_lift, np.asarray(robot.T_ee_grasp).tobytes())
     if key not in _GRASP_SITES:
         compiled = robot_spec(
-            robot.model_path, robot.root_body, robot.planar_base, robot.ee_body, robot.ee_site, robot.drop_actuators
+            robot.model_path, robot.root_body, robot.planar_base, robot.ee_body, robot.ee_site, robot.drop_actuators,
+            robot.base_lift,
         ).compile()
         site = compiled.site(robot.ee_site)
         T_body_ee = np.eye(4)

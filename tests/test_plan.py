@@ -324,6 +324,31 @@ def test_a_twins_friction_does_not_decide_whether_a_drop_down_door_falls():
     assert PlanConfig().fall_ignores_friction
 
 
+@pytest.mark.parametrize(("friction", "expected"), [
+    (0.0, 1.5),  # its weight carries it from 3 deg short to its stop: opened to the stop
+    (22.1, 1.5 - np.deg2rad(3.0)),  # friction (1.5 times its largest gravity torque) holds it: the end margin stays
+])
+def test_open_takes_a_part_its_weight_carries_to_its_stop_all_the_way(friction: float, expected: float) -> None:
+    """'open' and 'close' stop ``end_margin`` short of a range end, except where the part's weight carries it from
+    there to the end (a drop-down door): held short, the door ran to its stop under Spot's hand and turned it about
+    the bar."""
+    from funrec_robot.plan import _requested_states
+    from funrec_robot.task import ArticulationTask
+
+    model = mujoco.MjModel.from_xml_string(f"""<mujoco><worldbody><body name="door" pos="0 0 0.1">
+      <joint name="hinge" type="hinge" axis="1 0 0" range="0 1.5" frictionloss="{friction}"/>
+      <geom type="box" pos="0 -0.01 0.3" size="0.25 0.01 0.3" mass="5"/></body></worldbody></mujoco>""")
+    task = ArticulationTask(part="door", joint_type="revolute", axis_world=[1, 0, 0], pivot_world=[0.0, 0.0, 0.1],
+                            state_range=(0.0, 1.5), state_current=0.0, p_world_contact=[0.0, -0.05, 0.6],
+                            approach_world=[0, 1, 0], handle_axis_world=[1, 0, 0])
+    states, _, target_state, _, blocked = _requested_states(task, model, 0, "open", None, PlanConfig())
+    assert blocked is None
+    assert target_state == pytest.approx(expected, abs=1e-9) and states[-1] == pytest.approx(expected, abs=1e-9)
+    # where the arm does not reach the stop, the planner asks for the margin again (plan._handle_path)
+    short = _requested_states(task, model, 0, "open", None, PlanConfig(), to_stop=False)[2]
+    assert short == pytest.approx(1.5 - np.deg2rad(3.0), abs=1e-9)
+
+
 def test_the_approach_tested_for_collisions_is_the_one_the_plan_moves_along(robot, revolute) -> None:
     """Ruckig synchronises the joints in time, not along one line: the collision test must sample the move at
     the limits the plan is timed with (at the robot's full limits TIAGo's arm missed a knob it then swept

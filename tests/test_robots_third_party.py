@@ -312,3 +312,38 @@ def test_tiago_lets_a_dishwasher_door_fall_where_its_wrist_still_holds_it(tiago,
     force = holding_force(model, joint, np.array([capped["state"]]), task.p_world_contact, task.axis_world, task.pivot_world)
     assert float(np.linalg.norm(force)) <= capacity + 1e-9
     assert kinematic_collisions(robot, model, plan) == []
+
+
+def test_a_legged_body_crouches_on_a_planned_lift(tmp_path) -> None:
+    """``base: {lift: true}`` adds a vertical slide under a planar base (a legged body's height): listed first among
+    the arm joints it is a lift whose range the robot file gives, the model limits it there, the body's geoms stay
+    the base's, and the body starts at its standing height whatever the handle's."""
+    from funrec_robot.reach import lifted
+    from funrec_robot.robot_yaml import BASE_LIFT_JOINT
+    from funrec_robot.sim_model import build_mujoco_model
+
+    text = (ROBOTS / "spot_arm.yaml").read_text()
+    text = text.replace("  height: 0.46\n", "  height: 0.46\n  lift: true\n")
+    text = text.replace("arm_joints: [arm_sh0,", f"arm_joints: [{BASE_LIFT_JOINT}, arm_sh0,")
+    text = text.replace("limits:\n  velocity:\n", f"limits:\n  position:\n    {BASE_LIFT_JOINT}: [-0.2, 0.06]\n  velocity:\n    {BASE_LIFT_JOINT}: 0.2\n")
+    text = text.replace("  acceleration:\n", f"  acceleration:\n    {BASE_LIFT_JOINT}: 0.5\n")
+    text = text.replace("  effort:\n", f"  effort:\n    {BASE_LIFT_JOINT}: 1500.0\n")
+    text = text.replace("  servos:\n", f"  servos:\n    {BASE_LIFT_JOINT}: {{kp: 20000.0, kv: 3000.0}}\n")
+    crouching = tmp_path / "spot_crouching.yaml"
+    crouching.write_text(text)
+    robot = load_robot(crouching)
+    standing = measure_robot(load_robot(ROBOTS / "spot_arm.yaml"))
+    geometry = measure_robot(robot)
+    assert robot.base_lift and robot.joint_names[3] == BASE_LIFT_JOINT
+    assert geometry.lift_range == pytest.approx((-0.2, 0.06)) and geometry.lift_sign == 1.0
+    # the lift carries the whole robot, but the body is still the base, the arm still the arm
+    assert len(geometry.base_circles) == len(standing.base_circles)
+    np.testing.assert_allclose(geometry.p_base_shoulder, standing.p_base_shoulder, atol=1e-9)
+    assert lifted(robot, geometry, 0.2, 0.05) is robot
+    model = build_mujoco_model(robot)
+    joint = model.joint(f"robot/{BASE_LIFT_JOINT}")
+    assert model.jnt_limited[joint.id] and model.jnt_range[joint.id] == pytest.approx([-0.2, 0.06])
+    bad = tmp_path / "bad.yaml"
+    bad.write_text((ROBOTS / "fetch.yaml").read_text().replace("base:\n", "base:\n  lift: true\n", 1))
+    with pytest.raises(RobotDescriptionError, match="base.lift: a body lift is added to a planar base only"):
+        load_robot(bad)
