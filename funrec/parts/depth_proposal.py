@@ -29,7 +29,15 @@ from funrec.geometry.camera import backproject, project
 from funrec.geometry.joints import joint_transforms
 from funrec.geometry.transforms import invert_transform, transform_points
 from funrec.parts.articulation import PartEstimate
-from funrec.parts.depth_states import Arrival, DepthFit, DepthStateConfig, depth_fit, depth_states, motion_costs
+from funrec.parts.depth_states import (
+    Arrival,
+    DepthFit,
+    DepthStateConfig,
+    depth_fit,
+    depth_states,
+    motion_costs,
+    reaches_grid_end,
+)
 from funrec.parts.point_tracks import PointTracks
 from funrec.typed import BoolArray, FloatArray, IntArray
 
@@ -600,14 +608,6 @@ SLIDE_OVERRIDE_RATIO = 0.5
 and a wrong joint differ 2-5x once the part has moved (``rival_margin``)."""
 
 
-def _at_search_limit(fit: DepthFit, joint_type: str, search: DepthStateConfig) -> bool:
-    """Whether a fit's states reach the last state of the search grid (``depth_states``' grid, to half a step)."""
-    revolute = joint_type == "revolute"
-    step = search.revolute_step_rad if revolute else search.prismatic_step_m
-    limit = search.revolute_limit_rad if revolute else search.prismatic_limit_m
-    return bool(np.abs(fit.states).max(initial=0.0) >= (np.ceil(limit / step) - 0.5) * step)
-
-
 def _joint_key(joint_type: str, axis: FloatArray, pivot: FloatArray | None) -> tuple[float, ...]:
     return (float(joint_type == "revolute"), *np.asarray(axis, float), *(() if pivot is None else np.asarray(pivot, float)))
 
@@ -626,7 +626,7 @@ def _best_type(best_of: dict[str, tuple], fits: dict[tuple[float, ...], DepthFit
     if len(candidates) < 2:
         return candidates[0]
     chosen = [fits[_joint_key(*b[1:])] for b in candidates]
-    if any(_at_search_limit(fit, b[1], search) for fit, b in zip(chosen, candidates, strict=True)):
+    if any(reaches_grid_end(fit, b[1], search) for fit, b in zip(chosen, candidates, strict=True)):
         return candidates[0]
     moving = motion_costs(chosen)
     if not np.isfinite(moving).all():
@@ -719,13 +719,13 @@ def track_distance(proposal: DepthProposal, tracks: PointTracks, members: IntArr
     points posed by its joint in the frames the track is seen in (at most ``samples`` of them, evenly spread):
     whether the tracks are on the part depth proposes at all (inf without a seen member)."""
     T = joint_transforms(proposal.joint_type, proposal.axis_world, proposal.pivot_world, proposal.states)
+    posed = proposal.p_world[None] @ np.transpose(T[:, :3, :3], (0, 2, 1)) + T[:, None, :3, 3]  # (F, M, 3), once
     nearest = []
     for member in members:
         frames = np.flatnonzero(tracks.visible[:, member])
-        frames = frames[np.unique(np.linspace(0, len(frames) - 1, min(samples, len(frames))).astype(int))]
-        posed = np.stack([transform_points(T[f], proposal.p_world) for f in frames])  # (S, M, 3)
         if len(frames):
-            nearest.append(np.linalg.norm(posed - tracks.p_world[frames, member][:, None], axis=2).min())
+            frames = frames[np.unique(np.linspace(0, len(frames) - 1, min(samples, len(frames))).astype(int))]
+            nearest.append(np.linalg.norm(posed[frames] - tracks.p_world[frames, member][:, None], axis=2).min())
     return float(np.median(nearest)) if nearest else float("inf")
 
 

@@ -237,9 +237,7 @@ def _search(capture: Capture, trajectory: CameraTrajectory, joint_type: str, axi
     """The states of :func:`depth_states` and the depth cost of the chain (mean over the frames that see the part)."""
     F = len(capture)
     revolute = joint_type == "revolute"
-    step = config.revolute_step_rad if revolute else config.prismatic_step_m
-    limit = config.revolute_limit_rad if revolute else config.prismatic_limit_m
-    grid = np.arange(-np.ceil(limit / step), np.ceil(limit / step) + 1) * step
+    grid, step = _state_grid(joint_type, config)
     T_grid = joint_transforms(joint_type, axis_world, pivot_world, grid)  # (G, 4, 4)
     R_grid_t = np.transpose(T_grid[:, :3, :3], (0, 2, 1))
     p_grid = p_world[None] @ R_grid_t + T_grid[:, None, :3, 3]  # (G, M, 3)
@@ -288,6 +286,21 @@ def _search(capture: Capture, trajectory: CameraTrajectory, joint_type: str, axi
                 F, config.min_points, states.min(), states.max())
     frame_costs = np.where(seeing, depth_only[np.arange(F), chain], np.nan)
     return DepthFit(states, float(frame_costs[seeing].mean()) if seeing.any() else float("nan"), frame_costs)
+
+
+def _state_grid(joint_type: str, config: DepthStateConfig) -> tuple[FloatArray, float]:
+    """The searched states of a joint type, symmetric about the canonical state 0, and their step."""
+    revolute = joint_type == "revolute"
+    step = config.revolute_step_rad if revolute else config.prismatic_step_m
+    limit = config.revolute_limit_rad if revolute else config.prismatic_limit_m
+    return np.arange(-np.ceil(limit / step), np.ceil(limit / step) + 1) * step, step
+
+
+def reaches_grid_end(fit: DepthFit, joint_type: str, config: DepthStateConfig) -> bool:
+    """Whether a fit's states reach the last state searched (to half a step): no state within the search's limit
+    explained the frames there."""
+    grid, step = _state_grid(joint_type, config)
+    return bool(np.abs(fit.states).max(initial=0.0) >= grid[-1] - 0.5 * step)
 
 
 def _rest_prefix(depth_only: FloatArray, seeing: BoolArray, canonical: int, rest_frames: int, change_cost: float
@@ -477,4 +490,5 @@ def _min_cost_chain(cost: FloatArray, max_steps: int, change_cost: float) -> Int
     return path
 
 
-__all__ = ["Arrival", "DepthFit", "DepthStateConfig", "depth_fit", "depth_states", "motion_costs", "oriented_normals"]
+__all__ = ["Arrival", "DepthFit", "DepthStateConfig", "depth_fit", "depth_states", "motion_costs", "oriented_normals",
+           "reaches_grid_end"]
