@@ -69,9 +69,10 @@ class DepthStateConfig:
     depth_vetoes_tracks: bool = True
     """A trusted tracked state is not held where depth objects to it: every state within two ``track_sigma`` of it
     costs more than ``change_cost`` above the frame's best (depth sees the part elsewhere). Measured on the textured
-    family's tracked doors and drawers (reseeds 2-5): every tracked state within 3 deg (1 cm) of the truth had a
-    state within two sigmas at the frame's best (excess 0.000); tracks that slid off rev_cabinet_left_00_r5's door,
-    40 deg off, had excess 0.06-0.46. False: always held (ablation)."""
+    family's tracked parts of reseeds 2-5 (multi_kitchen_00, pri_drawer_02, rev_cabinet_left_00, rev_fridge_01, 14
+    runs): of 986 tracked states within 3 deg (3 cm) of the truth 5 were vetoed (all in rev_fridge_01_r4), of 57 off
+    by 5 deg (5 cm) or more 56 were (rev_cabinet_left_00_r5's tracks, 40 deg past the door, had excess 0.06-0.46).
+    False: always held (ablation)."""
     min_points: int = 6
     """A frame whose depth sees fewer part points (inside the image with a reading) gives no
     depth evidence."""
