@@ -189,8 +189,9 @@ def along_bar_to_lift(geometry: RobotGeometry, task: ArticulationTask, limit_mar
                       clearance: float = BAR_END_CLEARANCE_M) -> ArticulationTask:
     """The task with its contact point moved along an upright bar (``handle_extent`` known) to the nearest height
     the robot's lift serves (:func:`lifted` would not cut the lift there) widened by what the arm itself raises
-    (``RobotGeometry.reach_up``, else its reach), within ``clearance`` of the bar's ends; the task unchanged for a
-    robot without a lift (or with a body lift), a knob, a level bar, or a handle already within that band.
+    (``RobotGeometry.reach_up``, else its reach), if that height lies ``clearance`` inside the bar's ends; the task
+    unchanged for a robot without a lift (or with a body lift), a knob, a level bar, a handle already within that
+    band, or a bar that does not reach it.
 
     Stretch 3's mast tops out 0.11 m below a fridge's bar centre at 1.22 m, and its telescope raises nothing: the
     whole-body IK missed the pre-grasp by 47 mm level and by 10.9 deg pitched (rev_fridge_01_r3), for the whole
@@ -212,8 +213,9 @@ def along_bar_to_lift(geometry: RobotGeometry, task: ArticulationTask, limit_mar
     height = handle_height(task)
     shift = (float(np.clip(height, low, high)) - height) / rise
     below, above = task.handle_extent
-    shift = float(np.clip(shift, min(below + clearance, 0.0), max(above - clearance, 0.0)))
-    if abs(shift) < 1e-3:
+    if abs(shift) < 1e-3 or not below + clearance <= shift <= above - clearance:
+        # A bar that does not reach the band is taken where it was: a move part of the way leaves the lift cut all
+        # the same (TIAGo's 1.73 m wall-cabinet bar would have moved 1 cm down, r3 geo_island_rev_wall_00).
         return task
     return replace(task, p_world_contact=task.p_world_contact + shift * task.handle_axis_world,
                    handle_extent=(below - shift, above - shift))
