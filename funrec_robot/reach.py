@@ -190,8 +190,9 @@ def along_bar_to_lift(geometry: RobotGeometry, task: ArticulationTask, limit_mar
     """The task with its contact point moved along an upright bar (``handle_extent`` known) to the nearest height
     the robot's lift serves (:func:`lifted` would not cut the lift there) widened by what the arm itself raises
     (``RobotGeometry.reach_up``, else its reach), if that height lies ``clearance`` inside the bar's ends; the task
-    unchanged for a robot without a lift (or with a body lift), a knob, a level bar, a handle already within that
-    band, or a bar that does not reach it.
+    unchanged for a robot without a lift, a knob, a level bar, a handle already within that band, or a bar that
+    does not reach it. (A body lift, ``base.lift``, starts at standing height whatever the handle: the planner does
+    not call this for one.)
 
     Stretch 3's mast tops out 0.11 m below a fridge's bar centre at 1.22 m, and its telescope raises nothing: the
     whole-body IK missed the pre-grasp by 47 mm level and by 10.9 deg pitched (rev_fridge_01_r3), for the whole
