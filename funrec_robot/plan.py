@@ -37,7 +37,14 @@ from funrec_robot.grasp import grasp_candidates, graspable_tilts, guarded_close,
 from funrec_robot.grasp_frames import T_world_grasp_canonical, grasp_free_axis
 from funrec_robot.plan_config import PlanConfig
 from funrec_robot.plan_file import Plan, Segment, sha256_file
-from funrec_robot.reach import FLOOR_CHECK_ROOM, floor_reach_gap, handle_height, lifted, reach_refusal
+from funrec_robot.reach import (
+    FLOOR_CHECK_ROOM,
+    along_bar_to_lift,
+    floor_reach_gap,
+    handle_height,
+    lifted,
+    reach_refusal,
+)
 from funrec_robot.retime import Trajectory, point_to_point, retime_path
 from funrec_robot.robot import RobotDescription, load_robot
 from funrec_robot.robot_geometry import RobotGeometry, measure_robot
@@ -860,7 +867,10 @@ def _plan_interaction(robot: RobotDescription, scene_xml: str | Path, task: Arti
             log.warning("part '%s' does not rest at %.4f %s in the scene: it settles at %.4f; planning from there",
                         task.part, task.state_current, task.unit, rest)
             start, settled = rest, {"from": task.state_current, "to": rest}
-    if geometry.lift_range is not None:  # a torso or mast starts at the handle's height; the IK moves it on
+    if geometry.lift_range is not None and not robot.base_lift:
+        # An upright bar is taken where the lift serves, then the torso or mast starts at that height; the IK moves it on.
+        task = along_bar_to_lift(geometry, task, config.ik.limit_margin)
+    if geometry.lift_range is not None:
         robot = lifted(robot, geometry, handle_height(task), config.ik.limit_margin)
         geometry = measure_robot(robot)
     if geometry.reach_min > 0.0 and robot.drive == "differential":

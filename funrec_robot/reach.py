@@ -178,6 +178,50 @@ def lifted(robot: RobotDescription, geometry: RobotGeometry, height: float, limi
     return replace(robot, q_home=q_home, q_postures=postures)
 
 
+BAR_END_CLEARANCE_M = 0.06
+"""A bar taken away from its contact point (:func:`along_bar_to_lift`) is taken at least this far inside its ends:
+its posts, and half a hand's width of pads, m."""
+LEVEL_BAR_AXIS_Z = 0.5
+"""A bar whose axis rises less than this per metre is level: moving along it changes the height too little."""
+
+
+def along_bar_to_lift(geometry: RobotGeometry, task: ArticulationTask, limit_margin: float,
+                      clearance: float = BAR_END_CLEARANCE_M) -> ArticulationTask:
+    """The task with its contact point moved along an upright bar (``handle_extent`` known) to the nearest height
+    the robot's lift serves (:func:`lifted` would not cut the lift there) widened by what the arm itself raises
+    (``RobotGeometry.reach_up``, else its reach), if that height lies ``clearance`` inside the bar's ends; the task
+    unchanged for a robot without a lift, a knob, a level bar, a handle already within that band, or a bar that
+    does not reach it. (A body lift, ``base.lift``, starts at standing height whatever the handle: the planner does
+    not call this for one.)
+
+    Stretch 3's mast tops out 0.11 m below a fridge's bar centre at 1.22 m, and its telescope raises nothing: the
+    whole-body IK missed the pre-grasp by 47 mm level and by 10.9 deg pitched (rev_fridge_01_r3), for the whole
+    10 s budget, while the same bar runs down to 0.97 m."""
+    if geometry.lift_range is None or task.handle_extent is None or task.handle_axis_world is None:
+        return task
+    from funrec_robot.task import T_world_part
+
+    T = T_world_part(task, [task.state_current])[0]
+    rise = float(T[2, :3] @ task.handle_axis_world)
+    if abs(rise) < LEVEL_BAR_AXIS_Z:
+        return task
+    z = float(geometry.p_base_shoulder[2])
+    down, up = geometry.lift_range
+    inside = limit_margin + LIFT_MARGIN_M
+    raises = geometry.reach if geometry.reach_up is None else geometry.reach_up
+    low = z + down + inside - LIFT_ABOVE_HANDLE_M - raises
+    high = z + up - inside - LIFT_ABOVE_HANDLE_M + raises
+    height = handle_height(task)
+    shift = (float(np.clip(height, low, high)) - height) / rise
+    below, above = task.handle_extent
+    if abs(shift) < 1e-3 or not below + clearance <= shift <= above - clearance:
+        # A bar that does not reach the band is taken where it was: a move part of the way leaves the lift cut all
+        # the same (TIAGo's 1.73 m wall-cabinet bar would have moved 1 cm down, r3 geo_island_rev_wall_00).
+        return task
+    return replace(task, p_world_contact=task.p_world_contact + shift * task.handle_axis_world,
+                   handle_extent=(below - shift, above - shift))
+
+
 @dataclass(frozen=True)
 class ReachRow:
     """Whether each robot can reach one part's handle."""

@@ -100,6 +100,9 @@ class PartFront:
     None if no handle geom was identified."""
     handle_depth: float | None
     """Extent of the handle along the normal, m; None if no handle geom was identified."""
+    handle_extent: tuple[float, float] | None = None
+    """Where a bar ends either way of the contact point along ``handle_axis_world``: (below 0, above 0), m; None
+    for a knob or an unidentified handle."""
 
 
 def _name(model: mujoco.MjModel, kind: mujoco.mjtObj, index: int) -> str:
@@ -381,7 +384,7 @@ def part_front(model: mujoco.MjModel, joint: int, p_world_contact: npt.ArrayLike
     _, panel, face = best
     normal = np.sign(p_box[panel, face]) * R[panel][:, face]
     in_handle[panel] = False
-    handle_axis, width, depth = None, None, None
+    handle_axis, width, depth, extent = None, None, None, None
     if np.any(in_handle):
         k = int(np.flatnonzero(in_handle)[np.argmin(np.prod(half[in_handle], axis=1))])  # the smallest: the bar
         across = [(half[k, a], R[k][:, a]) for a in range(3) if abs(float(R[k][:, a] @ normal)) < 0.7]
@@ -392,6 +395,8 @@ def part_front(model: mujoco.MjModel, joint: int, p_world_contact: npt.ArrayLike
             axis = across[0][1] - normal * float(across[0][1] @ normal)
             handle_axis = axis / np.linalg.norm(axis)
             width = 2.0 * float(across[1][0])
+            along = float((p - centre[k]) @ handle_axis)
+            extent = (-float(across[0][0]) - along, float(across[0][0]) - along)
     # The standoff is the gap to whatever of the part lies behind the handle within a gripper's reach
     # across the approach (the front panel, a backplate, the posts of a bar); a geom no wider than the
     # handle (a knob's stem) passes between the fingers.
@@ -419,6 +424,7 @@ def part_front(model: mujoco.MjModel, joint: int, p_world_contact: npt.ArrayLike
         handle_geoms=tuple(_name(model, mujoco.mjtObj.mjOBJ_GEOM, g) for g in geoms[in_handle]),
         handle_width=width,
         handle_depth=depth,
+        handle_extent=extent,
     )
 
 

@@ -83,6 +83,9 @@ class ArticulationTask:
     handle_depth: float | None = None
     """Extent of the handle along the approach, m (it crosses the pads when the grasp is tilted); None if
     unknown (taken equal to the width)."""
+    handle_extent: tuple[float, float] | None = None
+    """Where a bar ends either way of ``p_world_contact`` along ``handle_axis_world``: (below 0, above 0), m; None
+    if unknown (the hand takes the bar at the contact point)."""
     demo_times: FloatArray = field(default_factory=lambda: np.zeros(0))
     """(K,) times of the demonstrated interaction, s from its start; empty if none."""
     demo_states: FloatArray = field(default_factory=lambda: np.zeros(0))

@@ -161,6 +161,7 @@ def task_from_ground_truth(
         surface_offset=front.standoff,
         handle_width=front.handle_width,
         handle_depth=front.handle_depth,
+        handle_extent=front.handle_extent,
         demo_times=demo_times,
         demo_states=demo_states,
         source=f"gt:{gt.root}",

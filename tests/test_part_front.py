@@ -53,3 +53,11 @@ def test_a_handle_reaching_past_the_doors_edge_faces_the_door_not_its_edge() -> 
 def test_a_contact_point_away_from_the_part_is_still_refused() -> None:
     with pytest.raises(PlanningError, match="no front panel"):
         _front("hinge", "0 0 1", '<geom type="box" size="0.4 0.01 0.3"/>', [2.0, 0.0, 0.5])
+
+
+def test_a_bars_ends_are_measured_from_the_contact_point_along_it() -> None:
+    # An upright bar 0.5 m long on a door's front, its contact point 0.1 m above the bar's middle.
+    door = '<geom type="box" size="0.4 0.01 0.5"/><geom type="box" pos="0.3 -0.03 0" size="0.0075 0.0075 0.25"/>'
+    front = _front("hinge", "0 0 1", door, [0.3, 0.67, 0.6])
+    np.testing.assert_allclose(front.handle_axis_world, [0.0, 0.0, 1.0], atol=1e-9)
+    assert front.handle_extent == pytest.approx((-0.35, 0.15), abs=1e-9)
