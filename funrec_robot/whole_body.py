@@ -377,7 +377,8 @@ def clear_release(
 ) -> float:
     """The gripper command to let go at: ``released``, or less open where opening that far on the handle at the
     end of the path would bring a finger more than the robot's ``gripper.release_sweep`` deeper into the part or
-    the scene (the handle aside) than it lay while holding, which knocks the part off its target as the hand lets go.
+    the scene (the handle aside) than it lay while holding, which knocks the part off its target as the hand lets go,
+    or any deeper into the scene but the part.
     Spot's hinged jaw, opened 7 mm clear of a microwave door's bar, swung 17 mm into the door and knocked it 0.11 rad
     back; opened 1 mm clear the door stayed (a sliding door's bar wants the full 5 mm to slide off).
 
@@ -390,6 +391,14 @@ def clear_release(
     commands = np.linspace(holding, released, config.release_sweep_samples)
     depths, names = release_sweep_depth(model, ik, q_end, target_state, commands, handle, floor)
     deeper = depths - depths[0] > limit
+    # The rest of the scene does not yield as the part does: there the fingers may go no deeper than while holding.
+    # Spot's jaw, opened on a sliding door's bar beside the wardrobe's fixed door, swept 6 mm into that door (within
+    # the part's 8 mm): a collision (plain_pri_wardrobe_00_r3).
+    part = set(part_geoms(model, ik.part_joint).tolist())
+    rest, rest_names = release_sweep_depth(model, ik, q_end, target_state, commands, handle | part, floor)
+    if (rest > rest[0]).any() and not deeper.any():
+        depths, names, limit = rest, rest_names, 0.0
+    deeper |= rest > rest[0]
     if not deeper.any():
         return released
     last = int(np.argmax(deeper)) - 1  # the last command before the first too deep
