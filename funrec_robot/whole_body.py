@@ -20,6 +20,7 @@ from funrec_robot.feasibility import (
     dynamic_limits,
     first_collision,
     gravity_overload,
+    path_collision,
     release_sweep_depth,
 )
 from funrec_robot.grasp import (
@@ -272,6 +273,13 @@ def _from_pregrasp(
              error=lambda message: PathNotReached(message, float(states[1 + worst])))
     q_path = np.vstack([q_grasp, tracked.q])
     states, path, q_path = _refine_path(ik, task, states, path, q_path, grasp, flip, holding, config)
+    # The IK keeps the robot off the scene as the robot moves, not as the part moves into it: a fridge door swinging
+    # towards Spot's body met a front leg that the base, trailing its planned stops, had left in its way (13 mm deep
+    # in the plan's own kinematics; in the check the arm pushed the door with 1367 N, rev_fridge_01_r3).
+    hit = path_collision(model, ik, q_path, states, holding, floor)
+    if hit is not None:
+        raise PlanningError(f"whole-body IK: along the handle path of part '{task.part}' the robot's "
+                            f"{hit[1]} meets {hit[2]} at {hit[0]:.3f} {task.unit}")
     overload = gravity_overload(
         robot, model, ik, np.vstack([q_grasp, q_path]), np.r_[start_state, states], holding, config.gravity_effort_share,
         ik.part_joint,
