@@ -234,6 +234,25 @@ def first_collision(
     return None
 
 
+def path_collision(
+    model: mujoco.MjModel, ik: WholeBodyIK, q: FloatArray, states: FloatArray, fingers: float, floor: set[int],
+) -> tuple[float, str, str] | None:
+    """First contact (kinematic, penetration only) between the robot but its hand and the scene, the floor aside,
+    along (K, nq) planning-joint positions with the part at (K,) ``states``: (state, robot body, scene geom), or
+    None. The hand's contacts with the part are the grasp's (``clear_release``, the IK's gripper distance)."""
+    data = mujoco.MjData(model)
+    hand = bodies_geoms(model, hand_bodies(ik.robot, model, ik.indices.grasp_site))
+    robot_geoms = _geom_mask(model, np.setdiff1d(bodies_geoms(model, ik.indices.bodies), hand))
+    ignored = _geom_mask(model, floor, hand)
+    for qk, state in zip(q, states):
+        data.qpos[:] = ik.full_q(qk, float(state), fingers)
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_collision(model, data)
+        for r, other, _ in _robot_scene_contacts(data, robot_geoms, ignored):
+            return float(state), model.body(int(model.geom_bodyid[r])).name, model.geom(other).name
+    return None
+
+
 def release_sweep_depth(
     model: mujoco.MjModel,
     ik: WholeBodyIK,
@@ -431,6 +450,7 @@ __all__ = [
     "holding_force",
     "joint_loads",
     "kinematic_collisions",
+    "path_collision",
     "release_sweep_depth",
     "resting_force",
     "resting_state",

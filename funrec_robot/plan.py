@@ -850,8 +850,12 @@ def _plan_interaction(robot: RobotDescription, scene_xml: str | Path, task: Arti
     refusal = reach_refusal(robot, geometry, task)
     if refusal is not None:
         raise Refusal(f"part '{task.part}': {refusal}")
-    # A twin's static scene may hold copies of the part (``ghosts``): the planner does not avoid them.
-    ghosts = part_ghosts(model, joint, range_states(model, joint, task.state_range), task.p_world_contact)
+    # A twin's static scene may hold copies of the part (``ghosts``): the planner does not avoid them. A scene of
+    # primitive geoms has none: a true scene's fixed wardrobe door 2 cm beside the sliding one counted as one, and
+    # Spot's opening jaw swept into it (plain_pri_wardrobe_00_r3).
+    ghosts = np.zeros(0, dtype=np.int64)
+    if hull_approximated(model, joint):
+        ghosts = part_ghosts(model, joint, range_states(model, joint, task.state_range), task.p_world_contact)
     ghost_names = [model.geom(int(g)).name for g in ghosts]
     if ghost_names:
         log.info("part '%s': %d static geom(s) lie inside the part within its range, not obstacles: %s",

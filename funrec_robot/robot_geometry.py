@@ -27,6 +27,8 @@ from funrec_robot.sim_model import (
 FIXED_JAW_REACH_M = 0.02
 """A geom of the hand (not of a finger) reaching this close to the fingertips along the approach is a fixed
 jaw, m (palms and wrist housings end well short of the fingertips)."""
+TURRET_RIM_POINTS = 16
+"""Points on the rim of an arm's turret disc tested against the base's discs (``_turret_circle``)."""
 FOOTPRINT_CELL_M = 0.3
 """Largest side of the cells whose circumscribed circles cover a footprint rectangle, m."""
 
@@ -100,6 +102,31 @@ def _circles(corners: FloatArray, z_low: float, z_high: float) -> tuple[Circle, 
             centre = low + size * (np.array([i, j]) + 0.5)
             out.append(Circle(centre_base=centre, radius=radius, z_band=(z_low, z_high)))
     return tuple(out)
+
+
+def _turret_circle(
+    model: mujoco.MjModel, data: mujoco.MjData, joint: int, arm_geoms: np.ndarray, base_circles: tuple[Circle, ...]
+) -> tuple[Circle, ...]:
+    """The disc the arm's first link sweeps when its joint turns it about a vertical axis (a turret: Spot's
+    ``arm_link_sh0``), as one more base disc, if it reaches out of the base's discs or above or below their band;
+    else none. Wherever the arm reaches, that link stays within this disc: base placement keeps it clear of the
+    part's sweep as it does the base. As an arm disc only the first stop keeps it clear, and of the part where it
+    starts only: a fridge door above Spot's body (its band ends at 0.57 m) swung into the shoulder at 1.2 rad
+    (plain_rev_fridge_00_r3, 18 mm deep in the plan's own kinematics, 1025 N in the check)."""
+    axis = data.xaxis[joint]
+    geoms = arm_geoms[model.geom_bodyid[arm_geoms] == model.jnt_bodyid[joint]]
+    if model.jnt_type[joint] != mujoco.mjtJoint.mjJNT_HINGE or abs(float(axis[2])) < 1.0 - 1e-6 or not len(geoms):
+        return ()
+    corners = _corners(model, data, geoms)
+    centre = data.xanchor[joint][:2].copy()
+    radius = float(np.linalg.norm(corners[:, :2] - centre, axis=1).max())
+    band = (float(corners[:, 2].min()), float(corners[:, 2].max()))
+    angles = np.linspace(0.0, 2.0 * np.pi, TURRET_RIM_POINTS, endpoint=False)
+    rim = centre + radius * np.column_stack([np.cos(angles), np.sin(angles)])
+    within = all(any(np.linalg.norm(p - c.centre_base) <= c.radius for c in base_circles) for p in rim)
+    if within and all(c.z_band[0] <= band[0] and band[1] <= c.z_band[1] for c in base_circles):
+        return ()
+    return (Circle(centre_base=centre, radius=radius, z_band=band),)
 
 
 def _corners(model: mujoco.MjModel, data: mujoco.MjData, geoms: np.ndarray) -> FloatArray:
@@ -179,6 +206,9 @@ def _measure(robot: RobotDescription, model: mujoco.MjModel) -> RobotGeometry:
     arm_corners = _corners(model, data, arm_geoms)
     finger_grasp = (_corners(model, data, finger_geoms) - p_grasp) @ R_world_grasp
     finger_z = finger_grasp[:, 2]
+    base_circles = _circles(body_corners[:, :2], float(body_corners[:, 2].min()), float(body_corners[:, 2].max()))
+    turret = next(j for j in arm if int(model.jnt_bodyid[j]) != root)
+    base_circles += _turret_circle(model, data, turret, arm_geoms, base_circles)
     lift_range, lift_sign = None, 1.0
     first = arm[0]
     if model.jnt_type[first] == mujoco.mjtJoint.mjJNT_SLIDE and abs(float(data.xaxis[first][2])) > 1.0 - 1e-6:
@@ -190,7 +220,7 @@ def _measure(robot: RobotDescription, model: mujoco.MjModel) -> RobotGeometry:
         p_base_shoulder=shoulder.copy(),
         wrist_to_grasp=float(np.linalg.norm(p_grasp - wrist)),
         reach=reach,
-        base_circles=_circles(body_corners[:, :2], float(body_corners[:, 2].min()), float(body_corners[:, 2].max())),
+        base_circles=base_circles,
         arm_circles=_circles(arm_corners[:, :2], float(arm_corners[:, 2].min()), float(arm_corners[:, 2].max())),
         fingertip_depth=float(finger_z.max()),
         finger_depth_range=(float(finger_z.min()), float(finger_z.max())),

@@ -20,6 +20,7 @@ from funrec_robot.feasibility import (
     dynamic_limits,
     first_collision,
     gravity_overload,
+    path_collision,
     release_sweep_depth,
 )
 from funrec_robot.grasp import (
@@ -272,6 +273,13 @@ def _from_pregrasp(
              error=lambda message: PathNotReached(message, float(states[1 + worst])))
     q_path = np.vstack([q_grasp, tracked.q])
     states, path, q_path = _refine_path(ik, task, states, path, q_path, grasp, flip, holding, config)
+    # The IK keeps the robot off the scene as the robot moves, not as the part moves into it: a fridge door swinging
+    # towards Spot's body met a front leg that the base, trailing its planned stops, had left in its way (13 mm deep
+    # in the plan's own kinematics; in the check the arm pushed the door with 1367 N, rev_fridge_01_r3).
+    hit = path_collision(model, ik, q_path, states, holding, floor)
+    if hit is not None:
+        raise PlanningError(f"whole-body IK: along the handle path of part '{task.part}' the robot's "
+                            f"{hit[1]} meets {hit[2]} at {hit[0]:.3f} {task.unit}")
     overload = gravity_overload(
         robot, model, ik, np.vstack([q_grasp, q_path]), np.r_[start_state, states], holding, config.gravity_effort_share,
         ik.part_joint,
@@ -377,7 +385,8 @@ def clear_release(
 ) -> float:
     """The gripper command to let go at: ``released``, or less open where opening that far on the handle at the
     end of the path would bring a finger more than the robot's ``gripper.release_sweep`` deeper into the part or
-    the scene (the handle aside) than it lay while holding, which knocks the part off its target as the hand lets go.
+    the scene (the handle aside) than it lay while holding, which knocks the part off its target as the hand lets go,
+    or any deeper into the scene but the part.
     Spot's hinged jaw, opened 7 mm clear of a microwave door's bar, swung 17 mm into the door and knocked it 0.11 rad
     back; opened 1 mm clear the door stayed (a sliding door's bar wants the full 5 mm to slide off).
 
@@ -390,6 +399,14 @@ def clear_release(
     commands = np.linspace(holding, released, config.release_sweep_samples)
     depths, names = release_sweep_depth(model, ik, q_end, target_state, commands, handle, floor)
     deeper = depths - depths[0] > limit
+    # The rest of the scene does not yield as the part does: there the fingers may go no deeper than while holding.
+    # Spot's jaw, opened on a sliding door's bar beside the wardrobe's fixed door, swept 6 mm into that door (within
+    # the part's 8 mm): a collision (plain_pri_wardrobe_00_r3).
+    part = set(part_geoms(model, ik.part_joint).tolist())
+    rest, rest_names = release_sweep_depth(model, ik, q_end, target_state, commands, handle | part, floor)
+    if (rest > rest[0]).any() and not deeper.any():
+        depths, names, limit = rest, rest_names, 0.0
+    deeper |= rest > rest[0]
     if not deeper.any():
         return released
     last = int(np.argmax(deeper)) - 1  # the last command before the first too deep

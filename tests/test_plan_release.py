@@ -16,7 +16,15 @@ from funrec_robot.feasibility import release_sweep_depth, resting_state
 from funrec_robot.grasp import release_command
 from funrec_robot.ik import WholeBodyIK
 from funrec_robot.plan import PlanConfig, plan_interaction
-from funrec_robot.scene import bodies_geoms, box_corners, floor_geoms, geom_boxes, part_joint, subtree_bodies
+from funrec_robot.scene import (
+    bodies_geoms,
+    box_corners,
+    floor_geoms,
+    geom_boxes,
+    part_geoms,
+    part_joint,
+    subtree_bodies,
+)
 from funrec_robot.sim_model import build_mujoco_spec
 from funrec_robot.task_sources import task_from_ground_truth
 from funrec_robot.whole_body import clear_release
@@ -90,9 +98,10 @@ def test_a_part_resting_where_recorded_is_planned_from_there(released) -> None:
     assert plan.start_state == 0.0
 
 
-def _with_wall(robot, gt: Path, plan, gap: float) -> tuple[mujoco.MjModel, WholeBodyIK, np.ndarray, float]:
+def _with_wall(robot, gt: Path, plan, gap: float, on_part: bool = False) -> tuple[mujoco.MjModel, WholeBodyIK, np.ndarray, float]:
     """The scene with a 4 cm thick wall beside the left finger, ``gap`` (m) outside its outer face with the hand
-    where the release starts, holding; returns the model, an IK on it, the planning joints and the part state."""
+    where the release starts, holding (with ``on_part``, a piece of the part there, moving with it); returns the
+    model, an IK on it, the planning joints and the part state."""
     model = build_mujoco_model(robot, gt / "scene.xml")
     indices = robot_indices(robot, model)
     k = int(np.searchsorted(plan.t, plan.segment("release").t_start))
@@ -111,23 +120,30 @@ def _with_wall(robot, gt: Path, plan, gap: float) -> tuple[mujoco.MjModel, Whole
     quat_wxyz = np.zeros(4)
     mujoco.mju_mat2Quat(quat_wxyz, R_world_grasp.ravel())
     spec = build_mujoco_spec(robot, gt / "scene.xml")
-    spec.worldbody.add_geom(name="wall", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.03, 0.02, 0.03],
-                            pos=p_world_grasp + R_world_grasp @ p_grasp_wall, quat=quat_wxyz)
+    p_world_wall, parent = p_world_grasp + R_world_grasp @ p_grasp_wall, spec.worldbody
+    if on_part:
+        body = int(model.jnt_bodyid[part_joint(model, plan.part)])
+        R_world_body = data.xmat[body].reshape(3, 3)
+        p_world_wall = R_world_body.T @ (p_world_wall - data.xpos[body])
+        mujoco.mju_mat2Quat(quat_wxyz, (R_world_body.T @ R_world_grasp).ravel())
+        parent = spec.body(model.body(body).name)
+    parent.add_geom(name="wall", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.03, 0.02, 0.03], pos=p_world_wall, quat=quat_wxyz)
     walled = spec.compile()
     return walled, WholeBodyIK(robot, walled, part_joint(walled, plan.part), plan.T_world_grasp_start[None, :3, 3], []), q, state
 
 
-def test_a_release_that_sweeps_a_finger_into_the_scene_opens_less(robot, released) -> None:
-    """A wall 1 mm outside the left finger, and 8 mm allowed (a robot file's ``gripper.release_sweep``, Spot's).
-    The planned release (the finger opens 7 mm: 5 mm gap and 2 mm squeeze) brings it at most 6 mm in: kept.
+def test_a_release_that_sweeps_a_finger_into_the_part_opens_less(robot, released) -> None:
+    """A piece of the part 1 mm outside the left finger, and 8 mm allowed (a robot file's ``gripper.release_sweep``,
+    Spot's). The planned release (the finger opens 7 mm: 5 mm gap and 2 mm squeeze) brings it at most 6 mm in: kept.
     Opening wide (to 42.5 mm, in 7 steps of 5.3 mm) it would go 9.6 mm in at the second step: the release stops at
-    the first. Allowed 0.5 mm, not even the first step (4.3 mm in) is: refused, naming the wall. The hand's own
+    the first. Allowed 0.5 mm, not even the first step (4.3 mm in) is: refused, naming the piece. The hand's own
     contact with the handle is left out (allowed geoms), as the floor."""
     gt, plan = released
-    model, ik, q, state = _with_wall(robot, gt, plan, 0.001)
+    model, ik, q, state = _with_wall(robot, gt, plan, 0.001, on_part=True)
     config = PlanConfig()
     floor = set(floor_geoms(model, np.flatnonzero(~np.isin(model.geom_bodyid, ik.indices.bodies))).tolist())
     handle = set(np.flatnonzero(np.isin(model.geom_bodyid, subtree_bodies(model, int(model.jnt_bodyid[part_joint(model, plan.part)])))).tolist())
+    handle.discard(model.geom("wall").id)
     loose = release_command(robot, plan.grasp_command, config.grasp)
     depths, names = release_sweep_depth(model, ik, q, state, np.array([plan.grasp_command, loose]), handle, floor)
     assert depths[0] == 0.0
@@ -143,3 +159,26 @@ def test_a_release_that_sweeps_a_finger_into_the_scene_opens_less(robot, release
     tight = dataclasses.replace(robot, gripper=dataclasses.replace(robot.gripper, release_sweep=0.0005))
     with pytest.raises(PlanningError, match=r"opening gripper sweeps .* into wall"):
         clear_release(tight, model, ik, task, q, state, plan.grasp_command, wide, handle, floor, config)
+
+
+def test_a_release_opens_no_finger_into_the_rest_of_the_scene(robot, released) -> None:
+    """The same wall standing in the scene, 4 mm outside the left finger: the rest of the scene does not yield as
+    the part does, so the 8 mm allowed there is not allowed here (a contact with it fails the check). The planned
+    release (7 steps of 1 mm) stops at the fourth step, the last before the wall; 1 mm outside the finger, no step
+    before the wall frees the handle: refused, naming the wall."""
+    gt, plan = released
+    config = PlanConfig()
+    task = task_from_ground_truth(gt, "part_0", build_mujoco_model(robot, gt / "scene.xml"))
+    spot_like = dataclasses.replace(robot, gripper=dataclasses.replace(robot.gripper, release_sweep=0.008))
+    loose = release_command(robot, plan.grasp_command, config.grasp)
+    for gap, kept in ((0.004, 4), (0.001, None)):
+        model, ik, q, state = _with_wall(robot, gt, plan, gap)
+        floor = set(floor_geoms(model, np.flatnonzero(~np.isin(model.geom_bodyid, ik.indices.bodies))).tolist())
+        handle = set(part_geoms(model, part_joint(model, plan.part)).tolist())
+        if kept is None:
+            with pytest.raises(PlanningError, match=r"opening gripper sweeps .* into wall"):
+                clear_release(spot_like, model, ik, task, q, state, plan.grasp_command, loose, handle, floor, config)
+            continue
+        released_at = clear_release(spot_like, model, ik, task, q, state, plan.grasp_command, loose, handle, floor, config)
+        steps = np.linspace(plan.grasp_command, loose, config.release_sweep_samples)
+        assert released_at == pytest.approx(steps[kept], abs=1e-12)

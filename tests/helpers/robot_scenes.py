@@ -16,7 +16,7 @@ from funrec.formats.camera_poses import write_camera_poses
 from funrec.formats.ground_truth import GroundTruthPart, write_ground_truth_json
 from funrec.formats.twin import make_part
 from funrec.synth.sequence import plan_sequence
-from funrec.synth.suite import families_suite
+from funrec.synth.suite import families_suite, reseeded
 
 REVOLUTE_CASE = "rev_cabinet_left_00"
 """A cabinet door with a vertical bar handle, hinge on the left."""
@@ -24,11 +24,12 @@ PRISMATIC_CASE = "pri_drawer_00"
 """A drawer with a horizontal bar handle at 0.8 m."""
 
 
-def write_gt_scene(name: str, out_dir: Path) -> Path:
-    """Write the gt/ folder of bench sequence ``name`` (of any family) under ``out_dir/name`` and return it."""
-    spec = {s.name: s for s in families_suite()}[name]
+def write_gt_scene(name: str, out_dir: Path, reseed: int = 0) -> Path:
+    """Write the gt/ folder of bench sequence ``name`` (of any family; its ``reseed``-th copy, named
+    ``<name>_r<reseed>``, for ``reseed`` > 0) under ``out_dir/<its name>`` and return it."""
+    spec = reseeded({s.name: s for s in families_suite()}[name], reseed)
     plan = plan_sequence(spec, texture_px=32)
-    gt = Path(out_dir) / name / "gt"
+    gt = Path(out_dir) / spec.name / "gt"
     for path, data in plan.assets.items():
         (gt / path).parent.mkdir(parents=True, exist_ok=True)
         (gt / path).write_bytes(data)
