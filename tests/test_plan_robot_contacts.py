@@ -5,7 +5,6 @@ the gripper allowed on the part within 6 cm of the handle). The models live outs
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import pytest
@@ -16,12 +15,10 @@ from funrec_robot.robot import load_robot
 from funrec_robot.robot_yaml import MODELS_ENV
 from funrec_robot.sim_model import build_mujoco_model
 from funrec_robot.task_sources import task_from_ground_truth
+from tests.helpers.robot_models import MODELS, ROBOTS, needs_models
 from tests.helpers.robot_scenes import write_gt_scene
 
-ROBOTS = Path(__file__).resolve().parents[1] / "robots"
-MODELS = Path(os.environ.get(MODELS_ENV, Path(__file__).resolve().parents[2] / "shared" / "robots"))
-
-pytestmark = pytest.mark.skipif(not (MODELS / "boston_dynamics_spot").is_dir(), reason=f"robot models not found in {MODELS}")
+pytestmark = needs_models("boston_dynamics_spot")
 
 
 def _spot_plan(name: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch):

@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -13,9 +10,7 @@ from funrec_robot.reach import lifted
 from funrec_robot.robot import load_robot
 from funrec_robot.robot_yaml import MODELS_ENV
 from funrec_robot.sim_model import build_mujoco_model
-
-ROBOTS = Path(__file__).resolve().parents[1] / "robots"
-MODELS = Path(os.environ.get(MODELS_ENV, Path(__file__).resolve().parents[2] / "shared" / "robots"))
+from tests.helpers.robot_models import MODELS, ROBOTS
 
 
 @pytest.mark.parametrize("name", ["tiago", "stretch3"])

@@ -5,7 +5,6 @@ the twin's mesh shows at most."""
 from __future__ import annotations
 
 import dataclasses
-import os
 from pathlib import Path
 
 import numpy as np
@@ -20,10 +19,8 @@ from funrec_robot.robot_geometry import measure_robot
 from funrec_robot.robot_yaml import MODELS_ENV
 from funrec_robot.task import ArticulationTask
 from funrec_robot.task_sources import task_from_ground_truth
+from tests.helpers.robot_models import MODELS, ROBOTS
 from tests.helpers.robot_scenes import PRISMATIC_CASE, write_gt_scene
-
-ROBOTS = Path(__file__).resolve().parents[1] / "robots"
-MODELS = Path(os.environ.get(MODELS_ENV, Path(__file__).resolve().parents[2] / "shared" / "robots"))
 
 
 @pytest.fixture

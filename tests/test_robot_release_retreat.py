@@ -5,7 +5,6 @@ within the arm's reach."""
 from __future__ import annotations
 
 import dataclasses
-import os
 from pathlib import Path
 
 import numpy as np
@@ -20,10 +19,8 @@ from funrec_robot.robot_geometry import measure_robot
 from funrec_robot.robot_yaml import MODELS_ENV, read_robot_yaml
 from funrec_robot.scene import part_joint
 from funrec_robot.task_sources import task_from_ground_truth
+from tests.helpers.robot_models import MODELS, ROBOTS
 from tests.helpers.robot_scenes import PRISMATIC_CASE, write_gt_scene
-
-ROBOTS = Path(__file__).resolve().parents[1] / "robots"
-MODELS = Path(os.environ.get(MODELS_ENV, Path(__file__).resolve().parents[2] / "shared" / "robots"))
 
 
 def _drawer_scene(robot, out_dir: Path) -> tuple[Path, object, object]:

@@ -4,9 +4,6 @@ to the checkout); without them these tests skip."""
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
-
 import mujoco
 import numpy as np
 import pytest
@@ -14,11 +11,9 @@ import pytest
 from funrec_robot.robot import load_robot
 from funrec_robot.robot_geometry import measure_robot
 from funrec_robot.robot_yaml import MODELS_ENV
+from tests.helpers.robot_models import MODELS, ROBOTS, needs_models
 
-ROBOTS = Path(__file__).resolve().parents[1] / "robots"
-MODELS = Path(os.environ.get(MODELS_ENV, Path(__file__).resolve().parents[2] / "shared" / "robots"))
-
-pytestmark = pytest.mark.skipif(not (MODELS / "boston_dynamics_spot").is_dir(), reason=f"robot models not found in {MODELS}")
+pytestmark = needs_models("boston_dynamics_spot")
 
 
 @pytest.fixture(autouse=True)

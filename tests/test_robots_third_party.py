@@ -19,11 +19,9 @@ from funrec_robot.robot import load_robot
 from funrec_robot.robot_geometry import measure_robot
 from funrec_robot.robot_yaml import MODELS_ENV, PLANAR_JOINTS
 from funrec_robot.task import ArticulationTask
+from tests.helpers.robot_models import MODELS, ROBOTS, needs_models
 
-ROBOTS = Path(__file__).resolve().parents[1] / "robots"
-MODELS = Path(os.environ.get(MODELS_ENV, Path(__file__).resolve().parents[2] / "shared" / "robots"))
-
-pytestmark = pytest.mark.skipif(not (MODELS / "pal_tiago").is_dir(), reason=f"robot models not found in {MODELS}")
+pytestmark = needs_models("pal_tiago")
 
 
 @pytest.fixture(autouse=True)
