@@ -235,20 +235,27 @@ def _contour(depth: FloatArray, max_edge_ratio: float, bridge_px: int) -> tuple[
     every pixel half a pixel off the same way), and (N,) their depths."""
     farther = depth * (1.0 + max_edge_ratio)
     valid = depth > 0
+    depth32 = depth.astype(np.float32)
+    # Only pixels with a farther pixel within the bridge can be on a contour: the axis walks below run on those
+    # few (a per-pixel walk over the whole image took 12 ms a frame, this 1 ms).
+    size = 2 * max(bridge_px, 1) + 1
+    v, u = np.nonzero(valid & (cv2.dilate(depth32, np.ones((size, size), np.uint8)) > farther))
     h, w = depth.shape
-    padded = np.pad(depth, bridge_px)  # zeros: holes, never the far side
-    step = np.zeros((h, w, 2), dtype=np.int64)
+    z_far = farther[v, u]
+    step = np.zeros((len(v), 2), dtype=np.int64)
     for du, dv in ((1, 0), (-1, 0), (0, 1), (0, -1)):
-        holes = np.ones((h, w), dtype=bool)
-        far = np.zeros((h, w), dtype=bool)
+        holes = np.ones(len(v), dtype=bool)
+        far = np.zeros(len(v), dtype=bool)
         for k in range(1, bridge_px + 1):
-            beyond = padded[bridge_px + k * dv: bridge_px + k * dv + h, bridge_px + k * du: bridge_px + k * du + w]
-            far |= holes & (beyond > farther)
+            un, vn = u + k * du, v + k * dv
+            inside = (un >= 0) & (un < w) & (vn >= 0) & (vn < h)
+            beyond = np.where(inside, depth[np.clip(vn, 0, h - 1), np.clip(un, 0, w - 1)], 0.0)  # outside: a hole
+            far |= holes & (beyond > z_far)
             holes &= beyond <= 0
         step[far] += (du, dv)
-    near = valid & ((step != 0).any(axis=2) | (cv2.dilate(depth.astype(np.float32), np.ones((3, 3), np.uint8)) > farther))
-    v, u = np.nonzero(near)
-    return np.stack([2 * u, 2 * v], axis=1) + np.clip(step[v, u], -1, 1), depth[v, u]
+    near = step.any(axis=1) | (cv2.dilate(depth32, np.ones((3, 3), np.uint8)) > farther)[v, u]
+    v, u, step = v[near], u[near], step[near]
+    return np.stack([2 * u, 2 * v], axis=1) + np.clip(step, -1, 1), depth[v, u]
 
 
 def depth_view(gray: UInt8Array, depth_m: FloatArray, usable: BoolArray, K: FloatArray,
