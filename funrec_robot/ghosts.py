@@ -3,9 +3,10 @@
 A reconstructed twin fuses the static scene from every frame of the capture; where the part was not masked out
 well (its handle, held open for seconds), a copy of it at that state stays in the static mesh. Such a geom lies
 inside the part at some state of the range the part was seen to move through, which no solid can: the part
-would have been stopped there. The planner treats these geoms as no obstacle (see ``plan``). In a true scene no
-static geom lies inside a part within its range (the part would be blocked, ``feasibility.first_blocked_state``),
-so nothing there is a ghost but what lies within ``GHOST_TOLERANCE_M`` of the part's sweep.
+would have been stopped there. The planner treats these geoms as no obstacle (see ``plan``), and looks for them
+only in a twin's fused scene (``scene.hull_approximated``): a true scene of primitive geoms has no copies of its
+parts, and looking there took real furniture within ``GHOST_TOLERANCE_M`` of the part's sweep for ghosts (a
+wardrobe's fixed door 2 cm beside the sliding one, robots21p).
 """
 
 from __future__ import annotations
@@ -27,8 +28,8 @@ outside the part's hull and 10 mm from the contact point); and the copy was fuse
 while the twin's joint sweeps the part about a centimetre elsewhere (pivots 0-1.2 cm off on the bench twins).
 At 15 mm the copies of the fridge door's handle at its held state, 9-16 mm outside its hull on the twin of
 ``plain_rev_fridge_00`` (pivot 1.2 cm off), stayed obstacles the hand could not pass (the IK 2 cm off the
-handle path). The price: a true scene's fixed pane 2 cm beside a sliding one (``mw_window_00``, whose handle
-every gripper refuses) counts as a ghost of it; a contact with such a geom still fails the check."""
+handle path). The price, in a twin: real furniture within this distance of the part's sweep counts as a ghost of
+it (the planner does not look for ghosts in a true scene); a contact with such a geom still fails the check."""
 GHOST_FRACTION = 0.9
 """A static geom is a ghost when at least this share of its vertices lie inside the part (as above) at some
 state: a geom of real furniture next to the part (a carcass side the door's edge grazes) has most of its
