@@ -19,7 +19,7 @@ from funrec.typed import FloatArray
 from funrec_robot.robot import RobotDescription
 from funrec_robot.robot_geometry import Circle, RobotGeometry
 from funrec_robot.scene import Polygon
-from funrec_robot.task import ArticulationTask
+from funrec_robot.task import ArticulationTask, T_world_part
 
 LIFT_ABOVE_HANDLE_M = 0.1
 """A lift puts the shoulder this far above the handle (the arm pulls best from slightly above), m."""
@@ -61,8 +61,6 @@ def reach_band(geometry: RobotGeometry) -> ReachBand:
 
 def handle_height(task: ArticulationTask) -> float:
     """Height of the handle where the hand takes it (the part at its current state), m."""
-    from funrec_robot.task import T_world_part
-
     T = T_world_part(task, [task.state_current])[0]
     return float(T[2, :3] @ task.p_world_contact + T[2, 3])
 
@@ -161,6 +159,14 @@ def floor_reach_gap(
     return distance - r_max if distance > r_max else None
 
 
+def _lift_moves(geometry: RobotGeometry, limit_margin: float) -> tuple[float, float]:
+    """How far :func:`lifted` may move the shoulder down and up from its measured height (the lift's range less
+    ``limit_margin`` and ``LIFT_MARGIN_M``), m; the robot must have a lift."""
+    down, up = geometry.lift_range
+    inside = limit_margin + LIFT_MARGIN_M
+    return down + inside, up - inside
+
+
 def lifted(robot: RobotDescription, geometry: RobotGeometry, height: float, limit_margin: float) -> RobotDescription:
     """The robot with its lift's home position putting the shoulder ``LIFT_ABOVE_HANDLE_M`` above a handle at
     ``height``, within the lift's range less ``limit_margin`` (the IK's) and ``LIFT_MARGIN_M``; the robot
@@ -169,9 +175,8 @@ def lifted(robot: RobotDescription, geometry: RobotGeometry, height: float, limi
     shoulder)."""
     if geometry.lift_range is None or robot.base_lift:
         return robot
-    down, up = geometry.lift_range
-    inside = limit_margin + LIFT_MARGIN_M
-    move = float(np.clip(height + LIFT_ABOVE_HANDLE_M - geometry.p_base_shoulder[2], down + inside, up - inside))
+    lowest, highest = _lift_moves(geometry, limit_margin)
+    move = float(np.clip(height + LIFT_ABOVE_HANDLE_M - geometry.p_base_shoulder[2], lowest, highest))
     q_home: FloatArray = robot.q_home.copy()
     q_home[len(robot.base_joints)] += geometry.lift_sign * move
     postures = tuple(np.where(np.arange(robot.nq) == len(robot.base_joints), q_home, q) for q in robot.q_postures)
@@ -199,18 +204,15 @@ def along_bar_to_lift(geometry: RobotGeometry, task: ArticulationTask, limit_mar
     10 s budget, while the same bar runs down to 0.97 m."""
     if geometry.lift_range is None or task.handle_extent is None or task.handle_axis_world is None:
         return task
-    from funrec_robot.task import T_world_part
-
     T = T_world_part(task, [task.state_current])[0]
     rise = float(T[2, :3] @ task.handle_axis_world)
     if abs(rise) < LEVEL_BAR_AXIS_Z:
         return task
     z = float(geometry.p_base_shoulder[2])
-    down, up = geometry.lift_range
-    inside = limit_margin + LIFT_MARGIN_M
+    lowest, highest = _lift_moves(geometry, limit_margin)
     raises = geometry.reach if geometry.reach_up is None else geometry.reach_up
-    low = z + down + inside - LIFT_ABOVE_HANDLE_M - raises
-    high = z + up - inside - LIFT_ABOVE_HANDLE_M + raises
+    low = z + lowest - LIFT_ABOVE_HANDLE_M - raises
+    high = z + highest - LIFT_ABOVE_HANDLE_M + raises
     height = handle_height(task)
     shift = (float(np.clip(height, low, high)) - height) / rise
     below, above = task.handle_extent

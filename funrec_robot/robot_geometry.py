@@ -172,7 +172,8 @@ def _measure(robot: RobotDescription, model: mujoco.MjModel) -> RobotGeometry:
     # A lift on the root body itself (a legged body's height, ``base_lift``) carries the whole robot: the arm starts
     # at the first joint on a body of its own.
     root = int(indices.bodies[0])
-    arm_bodies = subtree_bodies(model, next(int(model.jnt_bodyid[j]) for j in arm if int(model.jnt_bodyid[j]) != root))
+    turret = next(j for j in arm if int(model.jnt_bodyid[j]) != root)
+    arm_bodies = subtree_bodies(model, int(model.jnt_bodyid[turret]))
     all_geoms = np.flatnonzero(collides & np.isin(model.geom_bodyid, indices.bodies))
     arm_geoms = all_geoms[np.isin(model.geom_bodyid[all_geoms], arm_bodies)]
     body_geoms = np.setdiff1d(all_geoms, arm_geoms)
@@ -207,7 +208,6 @@ def _measure(robot: RobotDescription, model: mujoco.MjModel) -> RobotGeometry:
     finger_grasp = (_corners(model, data, finger_geoms) - p_grasp) @ R_world_grasp
     finger_z = finger_grasp[:, 2]
     base_circles = _circles(body_corners[:, :2], float(body_corners[:, 2].min()), float(body_corners[:, 2].max()))
-    turret = next(j for j in arm if int(model.jnt_bodyid[j]) != root)
     base_circles += _turret_circle(model, data, turret, arm_geoms, base_circles)
     lift_range, lift_sign = None, 1.0
     first = arm[0]
