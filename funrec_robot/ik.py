@@ -325,10 +325,13 @@ class WholeBodyIK:
         robot_geoms = bodies_geoms(model, self.indices.bodies)
         robot_geoms = robot_geoms[collides[robot_geoms]]
         gripper = np.intersect1d(robot_geoms, bodies_geoms(model, hand_bodies(robot, model, self.indices.grasp_site)))
-        arm_root = int(model.jnt_bodyid[model.joint(ROBOT_PREFIX + robot.arm_joints[0]).id])
+        # A legged body's height and pitch (``base_lift``, ``base_pitch``) move the root body itself: the arm's links
+        # are those of its joints on bodies of their own.
+        joints = [name for name in robot.arm_joints if self._joint_body(name) != int(self.indices.bodies[0])]
+        arm_root = self._joint_body(joints[0])
         arm = np.intersect1d(robot_geoms, bodies_geoms(model, subtree_bodies(model, arm_root)))
         body = np.setdiff1d(robot_geoms, arm)
-        forearm_root = int(model.jnt_bodyid[model.joint(ROBOT_PREFIX + robot.arm_joints[min(3, len(robot.arm_joints) - 1)]).id])
+        forearm_root = self._joint_body(joints[min(3, len(joints) - 1)])
         forearm = np.intersect1d(robot_geoms, bodies_geoms(model, subtree_bodies(model, forearm_root)))
 
         scene = np.flatnonzero(collides & ~np.isin(model.geom_bodyid, self.indices.bodies))
@@ -342,9 +345,9 @@ class WholeBodyIK:
         body_pairs = [(body.tolist(), scene.tolist())]
         arm_pairs = [(arm.tolist(), scene.tolist()), (np.setdiff1d(forearm, gripper).tolist(), body.tolist())]
         gripper_pairs = [(gripper.tolist(), np.setdiff1d(scene, allowed).tolist()), (gripper.tolist(), body.tolist())]
-        hand = np.intersect1d(robot_geoms, bodies_geoms(model, subtree_bodies(model, self._joint_body(robot.arm_joints[-1]))))
-        wrist = bodies_geoms(model, subtree_bodies(model, self._joint_body(robot.arm_joints[max(len(robot.arm_joints) - 2, 0)])))
-        upper = bodies_geoms(model, subtree_bodies(model, self._joint_body(robot.arm_joints[min(1, len(robot.arm_joints) - 1)])))
+        hand = np.intersect1d(robot_geoms, bodies_geoms(model, subtree_bodies(model, self._joint_body(joints[-1]))))
+        wrist = bodies_geoms(model, subtree_bodies(model, self._joint_body(joints[max(len(joints) - 2, 0)])))
+        upper = bodies_geoms(model, subtree_bodies(model, self._joint_body(joints[min(1, len(joints) - 1)])))
         upper_arm = np.setdiff1d(np.intersect1d(robot_geoms, upper), np.union1d(forearm, gripper))
         wrist_pairs = [(hand.tolist(), np.setdiff1d(arm, wrist).tolist()), (upper_arm.tolist(), body.tolist())]
         return tuple([(a, b) for a, b in pairs if a and b] for pairs in (body_pairs, arm_pairs, gripper_pairs, wrist_pairs))
