@@ -51,7 +51,8 @@ class IKConfig:
     posture_cost_arm: float = 0.01
     """PostureTask weight on the arm joints (towards the reference posture)."""
     posture_cost_base: float = 0.2
-    """PostureTask weight on the base joints (towards the planned base pose)."""
+    """PostureTask weight on the base joints (towards the planned base pose), and on a legged body's height and pitch
+    (``base_lift``, ``base_pitch``: towards the previous solution along a path, home elsewhere)."""
     posture_cost_rolling_base: float = 0.005
     """The same for a differential-drive base: low, so that it turns and rolls with the handle before the arm
     winds into its joint limits (TIAGo on a cabinet door opened 90 degrees: tracked at 0.005, 24 cm off at 0.2)."""
