@@ -51,7 +51,8 @@ class IKConfig:
     posture_cost_arm: float = 0.01
     """PostureTask weight on the arm joints (towards the reference posture)."""
     posture_cost_base: float = 0.2
-    """PostureTask weight on the base joints (towards the planned base pose)."""
+    """PostureTask weight on the base joints (towards the planned base pose), and on a legged body's height and pitch
+    (``base_lift``, ``base_pitch``: towards the previous solution along a path, home elsewhere)."""
     posture_cost_rolling_base: float = 0.005
     """The same for a differential-drive base: low, so that it turns and rolls with the handle before the arm
     winds into its joint limits (TIAGo on a cabinet door opened 90 degrees: tracked at 0.005, 24 cm off at 0.2)."""
@@ -268,6 +269,12 @@ class WholeBodyIK:
         if freeze_base and "yaw" in robot.base_motions:
             posture_cost[self.indices.dof[robot.base_motions.index("yaw")]] = config.posture_cost_rolling_yaw
         posture_cost[self.indices.dof[self.n_base :]] = config.posture_cost_arm
+        # A legged body's height and pitch (``base_lift``, ``base_pitch``: joints of the root body) carry the whole
+        # robot: they move as reluctantly as the base does, not as freely as the arm (weighted as the arm, Spot's body
+        # pitched back and forth at up to 0.23 rad/s while a dishwasher door moved 0.08 rad, and its hand pushed the
+        # door back: 63 N, rev_dishwasher_00_r3).
+        body = [k for k, name in enumerate(robot.arm_joints) if self._joint_body(name) == int(self.indices.bodies[0])]
+        posture_cost[self.indices.dof[self.n_base + np.array(body, dtype=int)]] = config.posture_cost_base
         self.posture_task = mink.PostureTask(model, cost=posture_cost)
         self.tasks: list[mink.Task] = [self.frame_task, self.posture_task]
         if config.gravity_cost > 0.0:
@@ -325,10 +332,13 @@ class WholeBodyIK:
         robot_geoms = bodies_geoms(model, self.indices.bodies)
         robot_geoms = robot_geoms[collides[robot_geoms]]
         gripper = np.intersect1d(robot_geoms, bodies_geoms(model, hand_bodies(robot, model, self.indices.grasp_site)))
-        arm_root = int(model.jnt_bodyid[model.joint(ROBOT_PREFIX + robot.arm_joints[0]).id])
+        # A legged body's height and pitch (``base_lift``, ``base_pitch``) move the root body itself: the arm's links
+        # are those of its joints on bodies of their own.
+        joints = [name for name in robot.arm_joints if self._joint_body(name) != int(self.indices.bodies[0])]
+        arm_root = self._joint_body(joints[0])
         arm = np.intersect1d(robot_geoms, bodies_geoms(model, subtree_bodies(model, arm_root)))
         body = np.setdiff1d(robot_geoms, arm)
-        forearm_root = int(model.jnt_bodyid[model.joint(ROBOT_PREFIX + robot.arm_joints[min(3, len(robot.arm_joints) - 1)]).id])
+        forearm_root = self._joint_body(joints[min(3, len(joints) - 1)])
         forearm = np.intersect1d(robot_geoms, bodies_geoms(model, subtree_bodies(model, forearm_root)))
 
         scene = np.flatnonzero(collides & ~np.isin(model.geom_bodyid, self.indices.bodies))
@@ -342,9 +352,9 @@ class WholeBodyIK:
         body_pairs = [(body.tolist(), scene.tolist())]
         arm_pairs = [(arm.tolist(), scene.tolist()), (np.setdiff1d(forearm, gripper).tolist(), body.tolist())]
         gripper_pairs = [(gripper.tolist(), np.setdiff1d(scene, allowed).tolist()), (gripper.tolist(), body.tolist())]
-        hand = np.intersect1d(robot_geoms, bodies_geoms(model, subtree_bodies(model, self._joint_body(robot.arm_joints[-1]))))
-        wrist = bodies_geoms(model, subtree_bodies(model, self._joint_body(robot.arm_joints[max(len(robot.arm_joints) - 2, 0)])))
-        upper = bodies_geoms(model, subtree_bodies(model, self._joint_body(robot.arm_joints[min(1, len(robot.arm_joints) - 1)])))
+        hand = np.intersect1d(robot_geoms, bodies_geoms(model, subtree_bodies(model, self._joint_body(joints[-1]))))
+        wrist = bodies_geoms(model, subtree_bodies(model, self._joint_body(joints[max(len(joints) - 2, 0)])))
+        upper = bodies_geoms(model, subtree_bodies(model, self._joint_body(joints[min(1, len(joints) - 1)])))
         upper_arm = np.setdiff1d(np.intersect1d(robot_geoms, upper), np.union1d(forearm, gripper))
         wrist_pairs = [(hand.tolist(), np.setdiff1d(arm, wrist).tolist()), (upper_arm.tolist(), body.tolist())]
         return tuple([(a, b) for a, b in pairs if a and b] for pairs in (body_pairs, arm_pairs, gripper_pairs, wrist_pairs))

@@ -12,7 +12,7 @@ import mujoco
 import numpy as np
 
 from funrec_robot.errors import RobotDescriptionError, UnknownNameError, format_names
-from funrec_robot.robot_yaml import BASE_LIFT_JOINT, PLANAR_JOINTS, RobotFile
+from funrec_robot.robot_yaml import BASE_LIFT_JOINT, BASE_PITCH_JOINT, PLANAR_JOINTS, RobotFile
 
 AXIS_TOLERANCE = 1e-6
 """Largest deviation of a unit axis from the expected one (base axes, orthogonal grasp axes)."""
@@ -96,11 +96,12 @@ def robot_spec(
     ee_site: str = "",
     drop_actuators: tuple[str, ...] = (),
     base_lift: bool = False,
+    base_pitch: bool = False,
 ) -> mujoco.MjSpec:
     """The model file as an MjSpec, with what a robot YAML adds to it: for ``planar_base`` the root body's free
     joint replaced by slides along its x and y and a hinge about its z (``PLANAR_JOINTS``; the file's
     keyframes, sized for the free joint, are dropped), and with ``base_lift`` a vertical slide after them
-    (``BASE_LIFT_JOINT``), for ``ee_body`` a site ``ee_site`` at that body's
+    (``BASE_LIFT_JOINT``), with ``base_pitch`` then a hinge about the body's y (``BASE_PITCH_JOINT``), for ``ee_body`` a site ``ee_site`` at that body's
     origin, and the actuators ``drop_actuators`` removed (with the keyframes, sized for them).
 
     Raises:
@@ -129,6 +130,8 @@ def robot_spec(
             root.add_joint(name=name, type=kind, axis=axis)
         if base_lift:
             root.add_joint(name=BASE_LIFT_JOINT, type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[0.0, 0.0, 1.0])
+        if base_pitch:
+            root.add_joint(name=BASE_PITCH_JOINT, type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0.0, 1.0, 0.0])
     if ee_body is not None:
         body = spec.body(ee_body)
         if body is None:
@@ -172,7 +175,7 @@ def read_model_facts(file: RobotFile) -> ModelFacts:
         name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, root)
         try:
             model = robot_spec(file.model, name, file.planar_base, file.ee_body, file.ee_site, file.drop_actuators,
-                               file.base_lift).compile()
+                               file.base_lift, file.base_pitch).compile()
         except ValueError as exc:
             raise RobotDescriptionError(file.path, f"model: {exc}") from exc
         root = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)

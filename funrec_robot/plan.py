@@ -66,6 +66,7 @@ from funrec_robot.task_bounds import check_task_bounds
 from funrec_robot.task_sources import load_task, locate_scene
 from funrec_robot.trajopt import BasePlacement, PlacementProblem, place_base
 from funrec_robot.whole_body import (
+    DeepInPart,
     PathNotReached,
     RetreatTooShort,
     approach_move,
@@ -560,6 +561,9 @@ def _search(
         (bases, rank, False, None, False) for bases, rank in attempts if rank < len(candidates)
     ]
     postures = list(robot.q_postures)
+    # The shallowest solution that left a finger in a weighted part's front (``DeepInPart``): the plan if no attempt
+    # keeps clear of it.
+    deep: DeepInPart | None = None
     # Attempts in a home posture left for the next one, unloading the arm through its null space instead, as
     # (home, attempt): tried once the others are spent.
     unload_in: list[tuple[FloatArray, tuple[int, int, bool, BasePlacement | None, bool]]] = []
@@ -584,6 +588,10 @@ def _search(
         try:
             return whole_body_configurations(robot, model, joint, task, grasp, states, placement, handle.target_state,
                                              geometry.fingertip_depth, config, unload, handle.final_state)
+        except DeepInPart as exc:
+            log.debug("part '%s', %d base stop(s), grasp %d: %s", task.part, bases, rank, exc)
+            deep = exc if deep is None or exc.depth < deep.depth else deep
+            continue
         except GravityOverload as exc:
             errors.append((1, exc))
             if geometry.lift_range is not None and exc.joint == robot.arm_joints[0]:
@@ -621,6 +629,8 @@ def _search(
                 # (A placement kept for a retry, unloading the arm, stays as it is.)
                 pending = [(bases, rank, unload, None, True)] + [(b, r, u, p, m or p is None) for b, r, u, p, m in pending]
             continue
+    if deep is not None:
+        return deep.solution
     if not errors:
         raise PlanningError(f"part '{task.part}': planning time budget exhausted")
     furthest = max(stage for stage, _ in errors)

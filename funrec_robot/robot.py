@@ -15,7 +15,8 @@ Keys (paths are relative to the YAML file, or ``package://<python package>/<path
   along the root body's x and y axes, yaw a hinge about its z axis that comes after them in the chain. Or
   ``{planar: true}``: the model's free joint replaced by such joints (``robot_yaml.PLANAR_JOINTS``), with
   ``height`` (the root body above the floor), ``drive`` and ``lift: true`` (a vertical slide
-  ``robot_yaml.BASE_LIFT_JOINT`` after them, a legged body's height, planned as the first arm joint).
+  ``robot_yaml.BASE_LIFT_JOINT`` after them, a legged body's height, planned as the first arm joint) and ``pitch:
+  true`` (then a hinge ``robot_yaml.BASE_PITCH_JOINT`` about the body's y, its pitch, planned with the arm).
 - ``arm_joints``: hinge or slide joints the planner moves, base to hand.
 - ``gripper``: ``joints`` (fingers), optional ``actuator``, and ``open`` / ``closed`` commands
   (the actuator's control value, or without an actuator the finger joint position).
@@ -181,6 +182,9 @@ class RobotDescription:
     base_lift: bool = False
     """A vertical slide ``base_lift`` carries the root body above the planar base joints (a legged body's height,
     ``robot_yaml.BASE_LIFT_JOINT``); it is a planning joint, the first of the arm's (a lift)."""
+    base_pitch: bool = False
+    """A hinge ``base_pitch`` about the root body's y pitches it on the planar base joints (a legged body,
+    ``robot_yaml.BASE_PITCH_JOINT``); it is a planning joint listed with the arm's."""
     ee_body: str | None = None
     """Body the end-effector site was added to, if the model has no site for it."""
     masses: dict[str, float] = field(default_factory=dict)
@@ -473,6 +477,7 @@ def load_robot(path: str | Path) -> RobotDescription:
         drive=file.drive,
         base_height=file.base_height,
         base_lift=file.base_lift,
+        base_pitch=file.base_pitch,
         ee_body=file.ee_body,
         masses=dict(file.masses),
         couplings=_couplings(file),

@@ -256,7 +256,9 @@ def _shoulder_reach(
     k0 = len(robot.base_joints)
     slides = [k for k in range(1, len(arm) - 1) if model.jnt_type[arm[k]] == mujoco.mjtJoint.mjJNT_SLIDE]
     if not slides:
-        anchors = data.xanchor[arm]
+        # A legged body's pitch (``base_pitch``, a hinge on the root body) is measured level: the arm starts after it.
+        root = int(indices.bodies[0])
+        anchors = data.xanchor[[j for j in arm if not (int(model.jnt_bodyid[j]) == root and model.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE)]]
         return anchors[1].copy(), float(np.sum(np.linalg.norm(np.diff(anchors[1:-1], axis=0), axis=1))), 0.0, 0.0, None
     end = arm[slides[-1] + 1]  # the joint the telescope carries
     qpos = data.qpos.copy()

@@ -38,6 +38,12 @@ BASE_LIFT_JOINT = "base_lift"
 (a legged body that crouches or rises): the file lists it first in ``arm_joints``, so the planner treats it as a
 lift (``reach.lifted``) and the whole-body IK moves it with the arm."""
 
+BASE_PITCH_JOINT = "base_pitch"
+"""Hinge about the root body's y axis, through its origin, that funrec_robot adds after ``PLANAR_JOINTS`` (and
+``BASE_LIFT_JOINT``) for ``base: {planar: true, pitch: true}`` (a legged body that pitches nose down or up; positive
+is nose down for a body whose x points forward): the file lists it in ``arm_joints`` and the whole-body IK moves it
+with the arm."""
+
 DRIVES = ("holonomic", "differential")
 """How a base moves: 'holonomic' (any planar motion), 'differential' (wheels: only along its heading, and
 turning on the spot)."""
@@ -120,6 +126,8 @@ class RobotFile:
     """Height of the root body's frame above the floor with a planar base, m (a legged body standing)."""
     base_lift: bool = False
     """A planar base whose body also moves up and down on ``BASE_LIFT_JOINT``."""
+    base_pitch: bool = False
+    """A planar base whose body also pitches on ``BASE_PITCH_JOINT``."""
     ee_body: str | None = None
     """Body the end-effector site ``ee_site`` is added to (at its origin), for models without a site."""
     gripper_extra_actuators: tuple[str, ...] = ()
@@ -252,7 +260,7 @@ def read_robot_yaml(path: str | Path) -> RobotFile:
     missing = [key for key in _REQUIRED if key not in top]
     if missing:
         raise r.fail("(top level)", f"missing key {format_names(missing)}")
-    base = r.mapping(top.get("base"), "base", (*BASE_MOTIONS, "planar", "drive", "height", "lift"))
+    base = r.mapping(top.get("base"), "base", (*BASE_MOTIONS, "planar", "drive", "height", "lift", "pitch"))
     planar = base.get("planar", False)
     if not isinstance(planar, bool):
         raise r.fail("base.planar", f"expected true or false, got {planar!r}")
@@ -264,11 +272,7 @@ def read_robot_yaml(path: str | Path) -> RobotFile:
         raise r.fail("base", f"planar: true adds the base joints {format_names(PLANAR_JOINTS.values())}; do not name x, y or yaw as well")
     if planar:
         motions = dict(PLANAR_JOINTS)
-    lift = base.get("lift", False)
-    if not isinstance(lift, bool):
-        raise r.fail("base.lift", f"expected true or false, got {lift!r}")
-    if lift and not planar:
-        raise r.fail("base.lift", "a body lift is added to a planar base only: set planar: true")
+    lift, pitch = (_body_motion(r, base, key, planar) for key in ("lift", "pitch"))
     gripper = r.mapping(top["gripper"], "gripper", ("joints", "actuator", "open", "closed", "open_width", "release_gap", "release_sweep",
                                                         "release_time"))
     for key in ("joints", "open", "closed"):
@@ -333,6 +337,7 @@ def read_robot_yaml(path: str | Path) -> RobotFile:
         drive=drive,
         base_height=r.number(base.get("height", 0.0), "base.height", 0.0),
         base_lift=lift,
+        base_pitch=pitch,
         ee_body=ee_body,
         gripper_extra_actuators=actuators[1:],
         masses=r.number_map(simulation.get("masses"), "simulation.masses", positive=True),
@@ -343,6 +348,16 @@ def read_robot_yaml(path: str | Path) -> RobotFile:
         coupled_joints=_couplings(r, top.get("coupled_joints")),
         drop_actuators=r.names(simulation.get("drop_actuators", []), "simulation.drop_actuators"),
     )
+
+
+def _body_motion(r: _Reader, base: dict, key: str, planar: bool) -> bool:
+    """``base.lift`` / ``base.pitch``: true or false, true only with ``planar: true``."""
+    value = base.get(key, False)
+    if not isinstance(value, bool):
+        raise r.fail(f"base.{key}", f"expected true or false, got {value!r}")
+    if value and not planar:
+        raise r.fail(f"base.{key}", f"a body {key} is added to a planar base only: set planar: true")
+    return value
 
 
 def _couplings(r: _Reader, value: object) -> dict[str, tuple[str, float]]:
@@ -372,6 +387,6 @@ def _postures(r: _Reader, value: object) -> tuple[dict[str, float], ...]:
 
 
 __all__ = [
-    "BASE_LIFT_JOINT", "BASE_MOTIONS", "DRIVES", "EE_SITE_SUFFIX", "MODELS_ENV", "MODELS_SCHEME", "PACKAGE_SCHEME", "PLANAR_JOINTS", "RobotFile",
+    "BASE_LIFT_JOINT", "BASE_MOTIONS", "BASE_PITCH_JOINT", "DRIVES", "EE_SITE_SUFFIX", "MODELS_ENV", "MODELS_SCHEME", "PACKAGE_SCHEME", "PLANAR_JOINTS", "RobotFile",
     "ServoEntry", "read_robot_yaml",
 ]

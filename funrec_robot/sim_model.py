@@ -90,7 +90,7 @@ def _prepare_robot_spec(robot: RobotDescription) -> mujoco.MjSpec:
     """The robot's model file as a spec, with servos, damping, gravity compensation and grasp site added."""
     try:
         spec = robot_spec(robot.model_path, robot.root_body, robot.planar_base, robot.ee_body, robot.ee_site, robot.drop_actuators,
-                          robot.base_lift)
+                          robot.base_lift, robot.base_pitch)
     except ValueError as exc:
         raise RobotDescriptionError(robot.model_path, f"MuJoCo cannot load the model: {exc}") from exc
     for name, damping in robot.damping.items():
@@ -101,7 +101,7 @@ def _prepare_robot_spec(robot: RobotDescription) -> mujoco.MjSpec:
     for name, lower, upper in zip(robot.joint_names, robot.q_min, robot.q_max):
         joint = spec.joint(name)
         if not _limited(joint) and np.isfinite(lower) and np.isfinite(upper):
-            # A joint the model leaves free whose range the robot file gives (``base_lift``, which funrec_robot adds):
+            # A joint the model leaves free whose range the robot file gives (``base_lift``, ``base_pitch``, which funrec_robot adds):
             # the IK's limits and the servo's command range are the joint's range in the model.
             joint.range = [float(lower), float(upper)]
             joint.limited = mujoco.mjtLimited.mjLIMITED_TRUE
@@ -154,11 +154,11 @@ def _grasp_site_pose(robot: RobotDescription) -> tuple[str, FloatArray, FloatArr
     site's pose in its body whatever orientation syntax the file used."""
     path = Path(robot.model_path)
     key = (str(path), path.stat().st_mtime_ns if path.is_file() else 0, robot.root_body, repr(robot.planar_base), robot.ee_body,
-           robot.ee_site, tuple(robot.drop_actuators), robot.base_lift, np.asarray(robot.T_ee_grasp).tobytes())
+           robot.ee_site, tuple(robot.drop_actuators), robot.base_lift, robot.base_pitch, np.asarray(robot.T_ee_grasp).tobytes())
     if key not in _GRASP_SITES:
         compiled = robot_spec(
             robot.model_path, robot.root_body, robot.planar_base, robot.ee_body, robot.ee_site, robot.drop_actuators,
-            robot.base_lift,
+            robot.base_lift, robot.base_pitch,
         ).compile()
         site = compiled.site(robot.ee_site)
         T_body_ee = np.eye(4)

@@ -20,6 +20,8 @@ from funrec_robot.feasibility import (
     dynamic_limits,
     first_collision,
     gravity_overload,
+    holding_force,
+    joint_loads,
     path_collision,
     release_sweep_depth,
 )
@@ -46,6 +48,15 @@ log = logging.getLogger(__name__)
 class RetreatTooShort(PlanningError):
     """The handle path is planned, but the arm cannot back the gripper off the handle at its end: base placement
     left the arm no room along the approach there (``plan._search`` then places the base again with room for it)."""
+
+
+class DeepInPart(PlanningError):
+    """Every way round that reached the handle path of a part whose weight presses on the hand at its end leaves a
+    finger in the scene there: the shallowest such solution, kept for when no other attempt does better."""
+
+    def __init__(self, message: str, solution: dict, depth: float) -> None:
+        super().__init__(message)
+        self.solution, self.depth = solution, depth
 
 
 class PathNotReached(PlanningError):
@@ -183,31 +194,71 @@ def whole_body_configurations(
         scored.append((score, flip, path, q_pre, e_pos, e_rot))
     scored.sort(key=lambda item: item[0])
     errors: list[PlanningError] = []
+    # A part whose weight presses on the hand where the path ends (a drop-down door at its stop) runs ahead of the
+    # compliant hand and presses its front onto a finger that lies in it: Spot's hinged jaw, 3.5 mm inside
+    # rev_oven_00_r3's door at the stop in the plan, lay 12 mm inside it in the check and the release met 107 N.
+    # There both ways round are tried, and the one lying shallower in the scene (the part's front) kept; if both
+    # lie in it, the caller tries its other base stops and grasps first (``DeepInPart``).
+    loaded = _weight_on_hand(model, joint, task, float(states[-1])) > config.fall_rest_force
+    kept: tuple[float, dict] | None = None
     for rank, (_, flip, path, q_pre, e_pos, e_rot) in enumerate(scored):
         if rank > 0 and (e_pos > config.track_position_tolerance or e_rot > config.track_orientation_tolerance):
             break  # the other way round does not even reach the pre-grasp pose
         args = (robot, model, ik, task, grasp, states, placement, target_state, fingertip_depth, config, unload, flip, path,
                 q_start, q_pre, e_pos, e_rot, posture, set(handle.tolist()), rest_state)
         straightened: list[bool] = []
-        try:
-            return _from_pregrasp(*args, straightened)
-        except TimeLimitSpent:
-            raise
-        except PlanningError as exc:  # a gravity overload too: the caller tries other postures if both ways fail
-            errors.append(exc)
-        if straightened:
+        solution = _attempt(args, straightened, errors)
+        if solution is None and straightened:
             # The straight approach ends in another grasp configuration than the joint move, and the handle path from
             # there may fail where it succeeded from the joint move's (TIAGo on dark_rev_glass_wall_00 missed it by
             # 5.2 mm at 0.646 rad, and the search spent its budget): then the joint move, as before.
-            try:
-                return _from_pregrasp(*args, None)
-            except TimeLimitSpent:
-                raise
-            except PlanningError as exc:
-                errors.append(exc)
+            solution = _attempt(args, None, errors)
+        if solution is None:
+            continue
+        if not loaded:
+            return solution
+        depth = _depth_at_stop(model, ik, solution, target_state, set(handle.tolist()))
+        if kept is None or depth < kept[0]:
+            kept = (depth, solution)
+        if depth == 0.0:
+            break
+    if kept is not None and kept[0] > 0.0:
+        raise DeepInPart(
+            f"whole-body IK: holding part '{task.part}' at {target_state:.3f} {task.unit}, whose weight presses on the "
+            f"hand, a finger lies {1000 * kept[0]:.1f} mm inside the scene", kept[1], kept[0])
+    if kept is not None:
+        return kept[1]
     for exc in errors[1:]:
         log.debug("the other way round: %s", exc)
     raise errors[0]
+
+
+def _attempt(args: tuple, straightened: list[bool] | None, errors: list[PlanningError]) -> dict | None:
+    """:func:`_from_pregrasp`, or None with its error appended to ``errors`` (a gravity overload too: the caller
+    tries other postures if both ways fail)."""
+    try:
+        return _from_pregrasp(*args, straightened)
+    except TimeLimitSpent:
+        raise
+    except PlanningError as exc:
+        errors.append(exc)
+        return None
+
+
+def _weight_on_hand(model: mujoco.MjModel, joint: int, task: ArticulationTask, state: float) -> float:
+    """The force, N, that holding the part still at ``state`` by its handle takes against its weight and spring."""
+    if task.joint_type == "revolute" and task.pivot_world is not None:
+        force = holding_force(model, joint, np.array([state]), task.p_world_contact, task.axis_world, task.pivot_world)
+        return float(np.linalg.norm(force[0]))
+    return abs(float(joint_loads(model, joint, np.array([state]))[0]))
+
+
+def _depth_at_stop(model: mujoco.MjModel, ik: WholeBodyIK, solution: dict, target_state: float, handle: set[int]) -> float:
+    """How deep the robot lies in the scene, the handle and the floor aside, holding at the end of the handle path, m."""
+    scene = np.flatnonzero(~np.isin(model.geom_bodyid, ik.indices.bodies))
+    floor = set(floor_geoms(model, scene).tolist())
+    holding = np.array([solution["grasp"].holding])
+    return float(release_sweep_depth(model, ik, solution["configs"]["path"][-1], target_state, holding, handle, floor)[0][0])
 
 
 def _from_pregrasp(
@@ -509,4 +560,4 @@ def _require(
         )
 
 
-__all__ = ["PathNotReached", "approach_move", "posture_along", "stop_position", "whole_body_configurations"]
+__all__ = ["DeepInPart", "PathNotReached", "approach_move", "posture_along", "stop_position", "whole_body_configurations"]
