@@ -42,6 +42,7 @@ from funrec_robot.reach import (
     along_bar_to_lift,
     floor_reach_gap,
     handle_height,
+    level_bar_ends,
     lifted,
     reach_refusal,
 )
@@ -64,7 +65,7 @@ from funrec_robot.sim_model import build_mujoco_model
 from funrec_robot.task import ArticulationTask, path_states, resolve_target
 from funrec_robot.task_bounds import check_task_bounds
 from funrec_robot.task_sources import load_task, locate_scene
-from funrec_robot.trajopt import BasePlacement, PlacementProblem, place_base
+from funrec_robot.trajopt import BasePlacement, PlacementError, PlacementProblem, place_base
 from funrec_robot.whole_body import (
     PathNotReached,
     RetreatTooShort,
@@ -469,14 +470,15 @@ def _cut_short(robot: RobotDescription, model: mujoco.MjModel, joint: int, task:
 def _held_prefix(robot: RobotDescription, model: mujoco.MjModel, joint: int, task: ArticulationTask, geometry: RobotGeometry,
                  states: FloatArray, config: PlanConfig) -> int:
     """How many leading ``states`` a revolute part that is let go to fall may be held for: up to the first where its
-    weight presses on the hand with more than ``fall_rest_force`` or than the arm holds within
+    weight presses on the hand with more than ``fall_rest_force`` (the robot's, else the config's) or than the arm holds within
     ``gravity_effort_share`` of its joints' efforts (``hand_capacity``), or where a lift would hold more than that
     share of its effort limit (the weight above it, in every posture the same, and the part's pull on the hand).
     ``len(states)`` if none; 0 for a prismatic part."""
     if task.joint_type != "revolute" or task.pivot_world is None:
         return 0
     force = holding_force(model, joint, states, task.p_world_contact, task.axis_world, task.pivot_world)
-    limit = min(config.fall_rest_force, hand_capacity(robot, model, config.gravity_effort_share))
+    rest = config.fall_rest_force if robot.gripper.fall_rest_force is None else robot.gripper.fall_rest_force
+    limit = min(rest, hand_capacity(robot, model, config.gravity_effort_share))
     light = np.linalg.norm(force, axis=1) <= limit
     if geometry.lift_range is not None:
         lift = len(robot.base_joints)
@@ -673,6 +675,34 @@ def _search_or_cut(
         return _search(robot, model, joint, task, geometry, shorter, cpu_started), shorter
 
 
+def _along_the_bar(
+    robot: RobotDescription, model: mujoco.MjModel, joint: int, task: ArticulationTask, geometry: RobotGeometry,
+    target: str | float, start: float | None, config: PlanConfig, cpu_started: float, failed: PlacementError,
+) -> tuple[ArticulationTask, dict, _HandlePath]:
+    """Where no base placement serves a level bar taken at its contact point: the search again with the bar taken
+    near either end (``reach.level_bar_ends``), within the same time budget; returns the task as taken, the
+    solution and the handle path.
+
+    Raises:
+        PlanningError: ``failed`` if every end fails at base placement too, else the furthest failure."""
+    error: PlanningError = failed
+    for moved in level_bar_ends(task):
+        try:
+            handle = _handle_path(robot, model, joint, moved, geometry, target, start, config)
+            solution, handle = _search_or_cut(robot, model, joint, moved, geometry, handle, target, cpu_started)
+        except (TimeLimitSpent, Refusal):
+            raise
+        except PlacementError:
+            continue
+        except PlanningError as exc:
+            error = exc
+            continue
+        log.info("part '%s': no base placement for the bar at its contact point; taken %.3f m along it",
+                 task.part, float((moved.p_world_contact - task.p_world_contact) @ np.asarray(task.handle_axis_world)))
+        return moved, solution, handle
+    raise error
+
+
 def _timed(
     robot: RobotDescription, model: mujoco.MjModel, task: ArticulationTask, handle: _HandlePath, solution: dict
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, tuple[Segment, ...]]:
@@ -723,7 +753,8 @@ def _timed(
         retreat = point_to_point(retreat_path[0], retreat_path[-1], v_back, a_back, rc)
     if handle.final_state is not None:
         # The released part rests on the open fingers until they have slid out from under it.
-        retreat = _slowed(retreat, 1.0 / config.falling_retreat_scale, rc.dt)
+        scale = config.falling_retreat_scale if robot.gripper.fall_retreat_scale is None else robot.gripper.fall_retreat_scale
+        retreat = _slowed(retreat, 1.0 / scale, rc.dt)
     end_state = target_state if handle.final_state is None else handle.final_state
     close_hold, close_cmd = _gripper_move(q_path[0], opening, holding, config, touch=guarded_close(robot, task, config.grasp))
     released = solution.get("released", release_command(robot, holding, config.grasp))
@@ -888,7 +919,10 @@ def _plan_interaction(robot: RobotDescription, scene_xml: str | Path, task: Arti
     if refusal is not None:
         raise Refusal(refusal)
     lap("path")
-    solution, handle = _search_or_cut(robot, model, joint, task, geometry, handle, target, cpu_started)
+    try:
+        solution, handle = _search_or_cut(robot, model, joint, task, geometry, handle, target, cpu_started)
+    except PlacementError as exc:
+        task, solution, handle = _along_the_bar(robot, model, joint, task, geometry, target, start, config, cpu_started, exc)
     lap("placement_ik")
     t, q, qd, gripper, part_state, segments = _timed(robot, model, task, handle, solution)
     lap("retime")

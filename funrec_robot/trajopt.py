@@ -27,6 +27,10 @@ from funrec_robot.scene import Polygon, lower_distances
 log = logging.getLogger(__name__)
 
 
+class PlacementError(PlanningError):
+    """No pose of the base stops keeps the handle path within reach and the base clear."""
+
+
 @dataclass(frozen=True)
 class PlacementConfig:
     """Settings of base placement."""
@@ -511,7 +515,7 @@ def place_base(problem: PlacementProblem, config: PlacementConfig = PlacementCon
     distances = _distances(problem, poses_out)
     if violation > config.violation_tolerance:
         r_min, r_max, _ = problem.window(config)
-        raise PlanningError(
+        raise PlacementError(
             f"base placement: no pose of {B} base stop(s) keeps the handle path within reach and the base clear "
             f"(constraint violation {violation:.3g}; wrist distances {distances.min():.2f}-{distances.max():.2f} m "
             f"for a reach window [{r_min:.2f}, {r_max:.2f}] m; clearance {exact_clearance(poses_out, problem):.3f} m)"
@@ -538,4 +542,4 @@ def _distances(problem: PlacementProblem, poses: FloatArray) -> FloatArray:
     return out
 
 
-__all__ = ["BasePlacement", "PlacementConfig", "PlacementProblem", "exact_clearance", "place_base"]
+__all__ = ["BasePlacement", "PlacementConfig", "PlacementError", "PlacementProblem", "exact_clearance", "place_base"]
