@@ -675,31 +675,61 @@ def _search_or_cut(
         return _search(robot, model, joint, task, geometry, shorter, cpu_started), shorter
 
 
-def _along_the_bar(
-    robot: RobotDescription, model: mujoco.MjModel, joint: int, task: ArticulationTask, geometry: RobotGeometry,
-    target: str | float, start: float | None, config: PlanConfig, cpu_started: float, failed: PlacementError,
-) -> tuple[ArticulationTask, dict, _HandlePath]:
-    """Where no base placement serves a level bar taken at its contact point: the search again with the bar taken
-    near either end (``reach.level_bar_ends``), within the same time budget; returns the task as taken, the
-    solution and the handle path.
-
-    Raises:
-        PlanningError: ``failed`` if every end fails at base placement too, else the furthest failure."""
-    error: PlanningError = failed
-    for moved in level_bar_ends(task):
+def _placeable(robot: RobotDescription, model: mujoco.MjModel, joint: int, geometry: RobotGeometry, handle: _HandlePath) -> bool:
+    """Whether base placement serves the handle path's best grasp from any number of stops (the search's first
+    attempts, placement alone)."""
+    config = handle.config
+    for bases in range(1, min(config.max_base_stops, len(handle.states)) + 1):
+        problem = _placement_problem(robot, model, joint, geometry, handle.candidates[0].frames, handle.states, bases, config,
+                                     handle.final_state)
         try:
-            handle = _handle_path(robot, model, joint, moved, geometry, target, start, config)
-            solution, handle = _search_or_cut(robot, model, joint, moved, geometry, handle, target, cpu_started)
-        except (TimeLimitSpent, Refusal):
-            raise
+            place_base(problem, config.placement)
         except PlacementError:
             continue
-        except PlanningError as exc:
+        return True
+    return False
+
+
+def _search_along_bar(
+    robot: RobotDescription, model: mujoco.MjModel, joint: int, task: ArticulationTask, geometry: RobotGeometry,
+    handle: _HandlePath, target: str | float, start: float | None, cpu_started: float,
+) -> tuple[ArticulationTask, dict, _HandlePath]:
+    """``_search_or_cut``; where no base placement serves a level bar taken at its contact point, the search again
+    with the bar taken near either end (``reach.level_bar_ends``), within the same time budget. Returns the task as
+    taken, the solution and the handle path.
+
+    For a part let go to fall (a drop-down door), whose fall the base keeps clear of in front of it, the ends come
+    first once no placement serves the best grasp at the contact point (the other grasps there last): Stretch 3
+    spent 3-4 s failing to place every grasp at the centres of the reseed-3 ovens' bars. Elsewhere the contact point
+    is searched in full first: a robot that places there plans as before.
+
+    Raises:
+        PlanningError: the search's failure at the contact point if every end fails at base placement too, else
+            the last failure."""
+    ends = level_bar_ends(task)
+    centre_first = not ends or handle.final_state is None or _placeable(robot, model, joint, geometry, handle)
+    error: PlanningError | None = None
+    if centre_first:
+        try:
+            return task, *_search_or_cut(robot, model, joint, task, geometry, handle, target, cpu_started)
+        except PlacementError as exc:
             error = exc
+    for moved in ends:
+        try:
+            moved_handle = _handle_path(robot, model, joint, moved, geometry, target, start, handle.config)
+            solution, moved_handle = _search_or_cut(robot, model, joint, moved, geometry, moved_handle, target, cpu_started)
+        except (TimeLimitSpent, Refusal):
+            raise
+        except PlanningError as exc:
+            if error is None or not isinstance(exc, PlacementError):
+                error = exc
             continue
-        log.info("part '%s': no base placement for the bar at its contact point; taken %.3f m along it",
-                 task.part, float((moved.p_world_contact - task.p_world_contact) @ np.asarray(task.handle_axis_world)))
-        return moved, solution, handle
+        log.info("part '%s': no base placement for the bar at its contact point; taken %.3f m along it", task.part,
+                 float((moved.p_world_contact - task.p_world_contact) @ np.asarray(task.handle_axis_world)))
+        return moved, solution, moved_handle
+    if not centre_first:
+        return task, *_search_or_cut(robot, model, joint, task, geometry, handle, target, cpu_started)
+    assert error is not None
     raise error
 
 
@@ -919,10 +949,7 @@ def _plan_interaction(robot: RobotDescription, scene_xml: str | Path, task: Arti
     if refusal is not None:
         raise Refusal(refusal)
     lap("path")
-    try:
-        solution, handle = _search_or_cut(robot, model, joint, task, geometry, handle, target, cpu_started)
-    except PlacementError as exc:
-        task, solution, handle = _along_the_bar(robot, model, joint, task, geometry, target, start, config, cpu_started, exc)
+    task, solution, handle = _search_along_bar(robot, model, joint, task, geometry, handle, target, start, cpu_started)
     lap("placement_ik")
     t, q, qd, gripper, part_state, segments = _timed(robot, model, task, handle, solution)
     lap("retime")
