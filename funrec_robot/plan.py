@@ -11,7 +11,7 @@ import logging
 import math
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import mujoco
@@ -345,6 +345,9 @@ class _HandlePath:
     """The settings, with the grasp's fall state set for a part let go to fall."""
     candidates: list
     """Grasp candidates along ``states`` (``grasp.grasp_candidates``), best first."""
+    placed: dict = field(default_factory=dict)
+    """Base placements of the best candidate already made, by number of stops (a ``BasePlacement``, or the
+    ``PlacementError`` it raised; ``_best_placements``): the search reuses them."""
 
 
 def _requested_states(
@@ -464,7 +467,7 @@ def _cut_short(robot: RobotDescription, model: mujoco.MjModel, joint: int, task:
         config = replace(config, grasp=replace(config.grasp, fall_state=target_state))
     candidates = grasp_candidates(robot, task, states, geometry, geometry.reach * config.placement.r_max_fraction, config.grasp)
     return replace(handle, states=states, target_state=target_state, final_state=final_state, reach_capped=reach_capped,
-                   config=config, candidates=candidates)
+                   config=config, candidates=candidates, placed={})
 
 
 def _held_prefix(robot: RobotDescription, model: mujoco.MjModel, joint: int, task: ArticulationTask, geometry: RobotGeometry,
@@ -573,6 +576,11 @@ def _search(
             pending.append(attempt)
         bases, rank, unload, placement, room = pending.pop(0)
         grasp = candidates[rank]
+        known = handle.placed.get(bases) if rank == 0 and not room and placement is None else None
+        if isinstance(known, PlacementError):
+            errors.append((0, known))
+            continue
+        placement = known if placement is None else placement
         if placement is None:
             problem = _placement_problem(robot, model, joint, geometry, grasp.frames, states, bases, config, handle.final_state,
                                          config.retreat_distance if room else 0.0)
@@ -675,19 +683,22 @@ def _search_or_cut(
         return _search(robot, model, joint, task, geometry, shorter, cpu_started), shorter
 
 
-def _placeable(robot: RobotDescription, model: mujoco.MjModel, joint: int, geometry: RobotGeometry, handle: _HandlePath) -> bool:
-    """Whether base placement serves the handle path's best grasp from any number of stops (the search's first
-    attempts, placement alone)."""
+def _best_placements(robot: RobotDescription, model: mujoco.MjModel, joint: int, geometry: RobotGeometry,
+                     handle: _HandlePath) -> dict:
+    """The base placements of the handle path's best grasp from 1, 2, ... stops up to the first that places (the
+    search's first placements, made ahead of it), by number of stops: a ``BasePlacement`` or the ``PlacementError``."""
     config = handle.config
+    placed: dict = {}
     for bases in range(1, min(config.max_base_stops, len(handle.states)) + 1):
         problem = _placement_problem(robot, model, joint, geometry, handle.candidates[0].frames, handle.states, bases, config,
                                      handle.final_state)
         try:
-            place_base(problem, config.placement)
-        except PlacementError:
+            placed[bases] = place_base(problem, config.placement)
+        except PlacementError as exc:
+            placed[bases] = exc
             continue
-        return True
-    return False
+        break
+    return placed
 
 
 def _search_along_bar(
@@ -707,7 +718,9 @@ def _search_along_bar(
         PlanningError: the search's failure at the contact point if every end fails at base placement too, else
             the last failure."""
     ends = level_bar_ends(task)
-    centre_first = not ends or handle.final_state is None or _placeable(robot, model, joint, geometry, handle)
+    if ends and handle.final_state is not None:
+        handle = replace(handle, placed=_best_placements(robot, model, joint, geometry, handle))
+    centre_first = handle.final_state is None or not ends or any(not isinstance(p, PlacementError) for p in handle.placed.values())
     error: PlanningError | None = None
     if centre_first:
         try:
