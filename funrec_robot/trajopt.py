@@ -270,8 +270,15 @@ def _base_terms(
     d2 = horizontal2 + dz2
     terms.add(d2, r_min**2, r_max**2)  # the first constraint: _stop_functions relies on it
     terms.cost += ca.sumsqr(ca.sqrt(d2 + 1e-9) - r_mid) / len(targets)
-    facing = ca.mtimes(heading.T, dxy) / ca.sqrt(horizontal2 + 1e-6)
+    along = ca.mtimes(heading.T, dxy)  # (1, K) how far out along the arm's reach direction each target lies
+    facing = along / ca.sqrt(horizontal2 + 1e-6)
     terms.cost += config.facing_weight * ca.sum2(1.0 - facing) / len(targets)
+    if problem.reach_min > 0.0:
+        # A telescoping arm drawn in still holds its wrist ``reach_min`` out along its slide, whatever lies ahead of
+        # or behind the base (rolling serves that): the distance from the shoulder alone let Stretch 3's stops stand
+        # where a fridge's bar came within a few centimetres of the base's line, the telescope drew in to its
+        # limit, and the IK missed the bar (dark_rev_fridge_00_r3: no plan after the 10 s budget).
+        terms.add(along, problem.reach_min, np.inf)
     region = targets[:, :2]
     window = r_max + max(float(np.linalg.norm(c.centre_base)) + c.radius for c in problem.base_circles + problem.arm_circles)
     window += float(np.linalg.norm(problem.p_base_shoulder[:2])) + config.clearance
