@@ -11,7 +11,7 @@ import logging
 import math
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import mujoco
@@ -42,6 +42,7 @@ from funrec_robot.reach import (
     along_bar_to_lift,
     floor_reach_gap,
     handle_height,
+    level_bar_ends,
     lifted,
     reach_refusal,
 )
@@ -64,7 +65,7 @@ from funrec_robot.sim_model import build_mujoco_model
 from funrec_robot.task import ArticulationTask, path_states, resolve_target
 from funrec_robot.task_bounds import check_task_bounds
 from funrec_robot.task_sources import load_task, locate_scene
-from funrec_robot.trajopt import BasePlacement, PlacementProblem, place_base
+from funrec_robot.trajopt import BasePlacement, PlacementError, PlacementProblem, place_base
 from funrec_robot.whole_body import (
     DeepInPart,
     PathNotReached,
@@ -345,6 +346,9 @@ class _HandlePath:
     """The settings, with the grasp's fall state set for a part let go to fall."""
     candidates: list
     """Grasp candidates along ``states`` (``grasp.grasp_candidates``), best first."""
+    placed: dict = field(default_factory=dict)
+    """Base placements of the best candidate already made, by number of stops (a ``BasePlacement``, or the
+    ``PlacementError`` it raised; ``_best_placements``): the search reuses them."""
 
 
 def _requested_states(
@@ -464,20 +468,21 @@ def _cut_short(robot: RobotDescription, model: mujoco.MjModel, joint: int, task:
         config = replace(config, grasp=replace(config.grasp, fall_state=target_state))
     candidates = grasp_candidates(robot, task, states, geometry, geometry.reach * config.placement.r_max_fraction, config.grasp)
     return replace(handle, states=states, target_state=target_state, final_state=final_state, reach_capped=reach_capped,
-                   config=config, candidates=candidates)
+                   config=config, candidates=candidates, placed={})
 
 
 def _held_prefix(robot: RobotDescription, model: mujoco.MjModel, joint: int, task: ArticulationTask, geometry: RobotGeometry,
                  states: FloatArray, config: PlanConfig) -> int:
     """How many leading ``states`` a revolute part that is let go to fall may be held for: up to the first where its
-    weight presses on the hand with more than ``fall_rest_force`` or than the arm holds within
+    weight presses on the hand with more than ``fall_rest_force`` (the robot's, else the config's) or than the arm holds within
     ``gravity_effort_share`` of its joints' efforts (``hand_capacity``), or where a lift would hold more than that
     share of its effort limit (the weight above it, in every posture the same, and the part's pull on the hand).
     ``len(states)`` if none; 0 for a prismatic part."""
     if task.joint_type != "revolute" or task.pivot_world is None:
         return 0
     force = holding_force(model, joint, states, task.p_world_contact, task.axis_world, task.pivot_world)
-    limit = min(config.fall_rest_force, hand_capacity(robot, model, config.gravity_effort_share))
+    rest = config.fall_rest_force if robot.gripper.fall_rest_force is None else robot.gripper.fall_rest_force
+    limit = min(rest, hand_capacity(robot, model, config.gravity_effort_share))
     light = np.linalg.norm(force, axis=1) <= limit
     if geometry.lift_range is not None:
         lift = len(robot.base_joints)
@@ -575,6 +580,11 @@ def _search(
             pending.append(attempt)
         bases, rank, unload, placement, room = pending.pop(0)
         grasp = candidates[rank]
+        known = handle.placed.get(bases) if rank == 0 and not room and placement is None else None
+        if isinstance(known, PlacementError):
+            errors.append((0, known))
+            continue
+        placement = known if placement is None else placement
         if placement is None:
             problem = _placement_problem(robot, model, joint, geometry, grasp.frames, states, bases, config, handle.final_state,
                                          config.retreat_distance if room else 0.0)
@@ -683,6 +693,69 @@ def _search_or_cut(
         return _search(robot, model, joint, task, geometry, shorter, cpu_started), shorter
 
 
+def _best_placements(robot: RobotDescription, model: mujoco.MjModel, joint: int, geometry: RobotGeometry,
+                     handle: _HandlePath) -> dict:
+    """The base placements of the handle path's best grasp from 1, 2, ... stops up to the first that places (the
+    search's first placements, made ahead of it), by number of stops: a ``BasePlacement`` or the ``PlacementError``."""
+    config = handle.config
+    placed: dict = {}
+    for bases in range(1, min(config.max_base_stops, len(handle.states)) + 1):
+        problem = _placement_problem(robot, model, joint, geometry, handle.candidates[0].frames, handle.states, bases, config,
+                                     handle.final_state)
+        try:
+            placed[bases] = place_base(problem, config.placement)
+        except PlacementError as exc:
+            placed[bases] = exc
+            continue
+        break
+    return placed
+
+
+def _search_along_bar(
+    robot: RobotDescription, model: mujoco.MjModel, joint: int, task: ArticulationTask, geometry: RobotGeometry,
+    handle: _HandlePath, target: str | float, start: float | None, cpu_started: float,
+) -> tuple[ArticulationTask, dict, _HandlePath]:
+    """``_search_or_cut``; where no base placement serves a level bar taken at its contact point, the search again
+    with the bar taken near either end (``reach.level_bar_ends``), within the same time budget. Returns the task as
+    taken, the solution and the handle path.
+
+    For a part let go to fall (a drop-down door), whose fall the base keeps clear of in front of it, the ends come
+    first once no placement serves the best grasp at the contact point (the other grasps there last): Stretch 3
+    spent 3-4 s failing to place every grasp at the centres of the reseed-3 ovens' bars. Elsewhere the contact point
+    is searched in full first: a robot that places there plans as before.
+
+    Raises:
+        PlanningError: the search's failure at the contact point if every end fails at base placement too, else
+            the last failure."""
+    ends = level_bar_ends(task)
+    if ends and handle.final_state is not None:
+        handle = replace(handle, placed=_best_placements(robot, model, joint, geometry, handle))
+    centre_first = handle.final_state is None or not ends or any(not isinstance(p, PlacementError) for p in handle.placed.values())
+    error: PlanningError | None = None
+    if centre_first:
+        try:
+            return task, *_search_or_cut(robot, model, joint, task, geometry, handle, target, cpu_started)
+        except PlacementError as exc:
+            error = exc
+    for moved in ends:
+        try:
+            moved_handle = _handle_path(robot, model, joint, moved, geometry, target, start, handle.config)
+            solution, moved_handle = _search_or_cut(robot, model, joint, moved, geometry, moved_handle, target, cpu_started)
+        except (TimeLimitSpent, Refusal):
+            raise
+        except PlanningError as exc:
+            if error is None or not isinstance(exc, PlacementError):
+                error = exc
+            continue
+        log.info("part '%s': no base placement for the bar at its contact point; taken %.3f m along it", task.part,
+                 float((moved.p_world_contact - task.p_world_contact) @ np.asarray(task.handle_axis_world)))
+        return moved, solution, moved_handle
+    if not centre_first:
+        return task, *_search_or_cut(robot, model, joint, task, geometry, handle, target, cpu_started)
+    assert error is not None
+    raise error
+
+
 def _timed(
     robot: RobotDescription, model: mujoco.MjModel, task: ArticulationTask, handle: _HandlePath, solution: dict
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, tuple[Segment, ...]]:
@@ -733,7 +806,8 @@ def _timed(
         retreat = point_to_point(retreat_path[0], retreat_path[-1], v_back, a_back, rc)
     if handle.final_state is not None:
         # The released part rests on the open fingers until they have slid out from under it.
-        retreat = _slowed(retreat, 1.0 / config.falling_retreat_scale, rc.dt)
+        scale = config.falling_retreat_scale if robot.gripper.fall_retreat_scale is None else robot.gripper.fall_retreat_scale
+        retreat = _slowed(retreat, 1.0 / scale, rc.dt)
     end_state = target_state if handle.final_state is None else handle.final_state
     close_hold, close_cmd = _gripper_move(q_path[0], opening, holding, config, touch=guarded_close(robot, task, config.grasp))
     released = solution.get("released", release_command(robot, holding, config.grasp))
@@ -898,7 +972,7 @@ def _plan_interaction(robot: RobotDescription, scene_xml: str | Path, task: Arti
     if refusal is not None:
         raise Refusal(refusal)
     lap("path")
-    solution, handle = _search_or_cut(robot, model, joint, task, geometry, handle, target, cpu_started)
+    task, solution, handle = _search_along_bar(robot, model, joint, task, geometry, handle, target, start, cpu_started)
     lap("placement_ik")
     t, q, qd, gripper, part_state, segments = _timed(robot, model, task, handle, solution)
     lap("retime")

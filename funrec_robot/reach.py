@@ -220,8 +220,33 @@ def along_bar_to_lift(geometry: RobotGeometry, task: ArticulationTask, limit_mar
         # A bar that does not reach the band is taken where it was: a move part of the way leaves the lift cut all
         # the same (TIAGo's 1.73 m wall-cabinet bar would have moved 1 cm down, r3 geo_island_rev_wall_00).
         return task
+    return _moved_along_bar(task, shift)
+
+
+def _moved_along_bar(task: ArticulationTask, shift: float) -> ArticulationTask:
+    """The task with its contact point moved ``shift`` (m) along the bar's axis, its ends kept where they are."""
+    assert task.handle_extent is not None and task.handle_axis_world is not None
+    below, above = task.handle_extent
     return replace(task, p_world_contact=task.p_world_contact + shift * task.handle_axis_world,
                    handle_extent=(below - shift, above - shift))
+
+
+def level_bar_ends(task: ArticulationTask, clearance: float = BAR_END_CLEARANCE_M) -> tuple[ArticulationTask, ...]:
+    """The task with its contact point moved along a level bar (``handle_extent`` known) to ``clearance`` inside
+    each of its ends, the nearer end first (none for a knob, an upright bar, unknown ends or a bar too short to move
+    along by a centimetre).
+
+    A drop-down door let go to fall keeps a base clear of where it falls open, in front of the part: a base that
+    rolls only along its heading and reaches sideways (Stretch 3) stands beside the door instead, and the bar's
+    centre lay 2-5 cm beyond its telescope (reseed-3 dishwashers; the bars run 0.21 m either side of it)."""
+    if task.handle_extent is None or task.handle_axis_world is None:
+        return ()
+    T = T_world_part(task, [task.state_current])[0]
+    if abs(float(T[2, :3] @ task.handle_axis_world)) >= LEVEL_BAR_AXIS_Z:
+        return ()
+    below, above = task.handle_extent
+    shifts = sorted((below + clearance, above - clearance), key=abs)
+    return tuple(_moved_along_bar(task, shift) for shift in shifts if abs(shift) >= 0.01 and below + clearance <= shift <= above - clearance)
 
 
 @dataclass(frozen=True)
@@ -257,4 +282,4 @@ def reach_table(scene: str | Path, robot_paths: Sequence[str | Path]) -> tuple[t
     return tuple(r.name for r in robots), tuple(rows)
 
 
-__all__ = ["LIFT_ABOVE_HANDLE_M", "ReachBand", "floor_reach_gap", "ReachRow", "handle_height", "lifted", "reach_band", "reach_refusal", "reach_table"]
+__all__ = ["LIFT_ABOVE_HANDLE_M", "ReachBand", "floor_reach_gap", "level_bar_ends", "ReachRow", "handle_height", "lifted", "reach_band", "reach_refusal", "reach_table"]

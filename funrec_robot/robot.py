@@ -104,6 +104,13 @@ class GripperDescription:
     """How long the gripper takes to open on letting go, s (``gripper.release_time``); None: the planner's
     ``PlanConfig.gripper_time``. A hinged jaw whose opening shakes the wrist wants longer: the grasp lets go of
     the part moving as the hand moved last."""
+    fall_rest_force: float | None = None
+    """Most weight a part let go to fall (a drop-down door) may rest on a finger with, N
+    (``gripper.fall_rest_force``); None: the planner's ``PlanConfig.fall_rest_force``. Fingertips on soft pads
+    turn under the weight and hook the part's edge as the hand slides off it."""
+    fall_retreat_scale: float | None = None
+    """Speed of the retreat from such a part, as a fraction of the usual (``gripper.fall_retreat_scale``); None: the
+    planner's ``PlanConfig.falling_retreat_scale``."""
 
     def command(self, half_width: float) -> float:
         """The command that leaves ``half_width`` between the grasp centre and each jaw (linear between closed
@@ -388,7 +395,8 @@ def _gripper(facts: ModelFacts) -> GripperDescription:
     forces = [file.effort_limits[n] for n in file.gripper_joints if n in file.effort_limits]
     return GripperDescription(file.gripper_joints, file.gripper_actuator, file.gripper_open, file.gripper_closed,
                               file.gripper_extra_actuators, file.gripper_open_width, min(forces) if forces else None,
-                              file.gripper_release_gap, file.gripper_release_sweep, file.gripper_release_time)
+                              file.gripper_release_gap, file.gripper_release_sweep, file.gripper_release_time,
+                              file.gripper_fall_rest_force, file.gripper_fall_retreat_scale)
 
 
 def _servos(facts: ModelFacts) -> dict[str, ServoGains]:

@@ -141,6 +141,10 @@ class RobotFile:
     (None: not checked)."""
     gripper_release_time: float | None = None
     """How long the gripper takes to open on letting go, s (None: the planner's default)."""
+    gripper_fall_rest_force: float | None = None
+    """Most weight a part let go to fall may rest on a finger with, N (None: the planner's default)."""
+    gripper_fall_retreat_scale: float | None = None
+    """Speed of the retreat from a part let go to fall, as a fraction of the usual (None: the planner's default)."""
     masses: dict[str, float] = field(default_factory=dict)
     """Body -> mass replacing the model's, kg (its inertia scaled alike), for a model file whose masses are wrong."""
     coupled_joints: dict[str, tuple[str, float]] = field(default_factory=dict)
@@ -274,7 +278,7 @@ def read_robot_yaml(path: str | Path) -> RobotFile:
         motions = dict(PLANAR_JOINTS)
     lift, pitch = (_body_motion(r, base, key, planar) for key in ("lift", "pitch"))
     gripper = r.mapping(top["gripper"], "gripper", ("joints", "actuator", "open", "closed", "open_width", "release_gap", "release_sweep",
-                                                        "release_time"))
+                                                        "release_time", "fall_rest_force", "fall_retreat_scale"))
     for key in ("joints", "open", "closed"):
         if key not in gripper:
             raise r.fail("gripper", f"missing key '{key}'")
@@ -345,6 +349,10 @@ def read_robot_yaml(path: str | Path) -> RobotFile:
         gripper_release_gap=r.number(gripper["release_gap"], "gripper.release_gap", positive=True) if "release_gap" in gripper else None,
         gripper_release_sweep=r.number(gripper["release_sweep"], "gripper.release_sweep", positive=True) if "release_sweep" in gripper else None,
         gripper_release_time=r.number(gripper["release_time"], "gripper.release_time", positive=True) if "release_time" in gripper else None,
+        gripper_fall_rest_force=(r.number(gripper["fall_rest_force"], "gripper.fall_rest_force", positive=True)
+                                 if "fall_rest_force" in gripper else None),
+        gripper_fall_retreat_scale=(_fraction(r, gripper["fall_retreat_scale"], "gripper.fall_retreat_scale")
+                                    if "fall_retreat_scale" in gripper else None),
         coupled_joints=_couplings(r, top.get("coupled_joints")),
         drop_actuators=r.names(simulation.get("drop_actuators", []), "simulation.drop_actuators"),
     )
@@ -376,6 +384,14 @@ def _couplings(r: _Reader, value: object) -> dict[str, tuple[str, float]]:
         else:
             out[follower] = (r.text(entry, key), 1.0)
     return out
+
+
+def _fraction(r: _Reader, value: object, key: str) -> float:
+    """A number in (0, 1]."""
+    number = r.number(value, key, positive=True)
+    if number > 1.0:
+        raise r.fail(key, f"expected a fraction in (0, 1], got {value!r}")
+    return number
 
 
 def _postures(r: _Reader, value: object) -> tuple[dict[str, float], ...]:

@@ -27,6 +27,10 @@ from funrec_robot.scene import Polygon, lower_distances
 log = logging.getLogger(__name__)
 
 
+class PlacementError(PlanningError):
+    """No pose of the base stops keeps the handle path within reach and the base clear."""
+
+
 @dataclass(frozen=True)
 class PlacementConfig:
     """Settings of base placement."""
@@ -266,8 +270,15 @@ def _base_terms(
     d2 = horizontal2 + dz2
     terms.add(d2, r_min**2, r_max**2)  # the first constraint: _stop_functions relies on it
     terms.cost += ca.sumsqr(ca.sqrt(d2 + 1e-9) - r_mid) / len(targets)
-    facing = ca.mtimes(heading.T, dxy) / ca.sqrt(horizontal2 + 1e-6)
+    along = ca.mtimes(heading.T, dxy)  # (1, K) how far out along the arm's reach direction each target lies
+    facing = along / ca.sqrt(horizontal2 + 1e-6)
     terms.cost += config.facing_weight * ca.sum2(1.0 - facing) / len(targets)
+    if problem.reach_min > 0.0:
+        # A telescoping arm drawn in still holds its wrist ``reach_min`` out along its slide, whatever lies ahead of
+        # or behind the base (rolling serves that): the distance from the shoulder alone let Stretch 3's stops stand
+        # where a fridge's bar came within a few centimetres of the base's line, the telescope drew in to its
+        # limit, and the IK missed the bar (dark_rev_fridge_00_r3: no plan after the 10 s budget).
+        terms.add(along, problem.reach_min, np.inf)
     region = targets[:, :2]
     window = r_max + max(float(np.linalg.norm(c.centre_base)) + c.radius for c in problem.base_circles + problem.arm_circles)
     window += float(np.linalg.norm(problem.p_base_shoulder[:2])) + config.clearance
@@ -511,7 +522,7 @@ def place_base(problem: PlacementProblem, config: PlacementConfig = PlacementCon
     distances = _distances(problem, poses_out)
     if violation > config.violation_tolerance:
         r_min, r_max, _ = problem.window(config)
-        raise PlanningError(
+        raise PlacementError(
             f"base placement: no pose of {B} base stop(s) keeps the handle path within reach and the base clear "
             f"(constraint violation {violation:.3g}; wrist distances {distances.min():.2f}-{distances.max():.2f} m "
             f"for a reach window [{r_min:.2f}, {r_max:.2f}] m; clearance {exact_clearance(poses_out, problem):.3f} m)"
@@ -538,4 +549,4 @@ def _distances(problem: PlacementProblem, poses: FloatArray) -> FloatArray:
     return out
 
 
-__all__ = ["BasePlacement", "PlacementConfig", "PlacementProblem", "exact_clearance", "place_base"]
+__all__ = ["BasePlacement", "PlacementConfig", "PlacementError", "PlacementProblem", "exact_clearance", "place_base"]

@@ -110,6 +110,22 @@ def test_a_robot_file_sets_how_far_its_fingers_open_to_let_go(tmp_path: Path, do
         load_robot(_write(tmp_path, document))
 
 
+def test_a_robot_file_sets_how_it_lets_a_falling_door_go(tmp_path: Path, document) -> None:
+    """``gripper.fall_rest_force`` and ``gripper.fall_retreat_scale`` (Stretch 3's rubber fingertip pads turn under
+    a door's weight and hook its edge) replace the planner's ``PlanConfig.fall_rest_force`` and
+    ``falling_retreat_scale`` for that robot alone; a scale is a fraction of the usual speed, in (0, 1]."""
+    default = load_robot(_write(tmp_path, document))
+    document["gripper"]["fall_rest_force"] = 7.0
+    document["gripper"]["fall_retreat_scale"] = 0.5
+    robot = load_robot(_write(tmp_path, document))
+    assert (default.gripper.fall_rest_force, default.gripper.fall_retreat_scale) == (None, None)
+    assert (robot.gripper.fall_rest_force, robot.gripper.fall_retreat_scale) == (7.0, 0.5)
+    for key, value in (("fall_retreat_scale", 1.5), ("fall_retreat_scale", 0.0), ("fall_rest_force", -1.0)):
+        bad = {**document, "gripper": {**document["gripper"], key: value}}
+        with pytest.raises(RobotDescriptionError, match=f"gripper.{key}"):
+            load_robot(_write(tmp_path, bad))
+
+
 def test_fixed_base_robot(tmp_path: Path, document) -> None:
     """Base joints left out of 'base' must then be held; the base type becomes 'fixed'."""
     del document["base"]

@@ -87,7 +87,7 @@ def test_a_lift_overloaded_by_gravity_ends_the_search_at_once(monkeypatch) -> No
     robot = SimpleNamespace(arm_joints=("joint_lift", "joint_wrist"), q_postures=(np.zeros(2),), q_home=np.zeros(2))
     config = PlanConfig()
     handle = SimpleNamespace(config=config, candidates=[SimpleNamespace(frames=np.eye(4)[None])] * 2,
-                             states=np.linspace(0.0, 1.0, 5), final_state=None, target_state=1.0)
+                             states=np.linspace(0.0, 1.0, 5), final_state=None, target_state=1.0, placed={})
     task = SimpleNamespace(part="door")
     lifted = SimpleNamespace(lift_range=(0.0, 1.0), fingertip_depth=0.05)
     monkeypatch.setattr(plan, "whole_body_configurations", overloaded("joint_lift"))
