@@ -204,8 +204,7 @@ def along_bar_to_lift(geometry: RobotGeometry, task: ArticulationTask, limit_mar
     10 s budget, while the same bar runs down to 0.97 m."""
     if geometry.lift_range is None or task.handle_extent is None or task.handle_axis_world is None:
         return task
-    T = T_world_part(task, [task.state_current])[0]
-    rise = float(T[2, :3] @ task.handle_axis_world)
+    rise = _bar_rise(task)
     if abs(rise) < LEVEL_BAR_AXIS_Z:
         return task
     z = float(geometry.p_base_shoulder[2])
@@ -221,6 +220,12 @@ def along_bar_to_lift(geometry: RobotGeometry, task: ArticulationTask, limit_mar
         # the same (TIAGo's 1.73 m wall-cabinet bar would have moved 1 cm down, r3 geo_island_rev_wall_00).
         return task
     return _moved_along_bar(task, shift)
+
+
+def _bar_rise(task: ArticulationTask) -> float:
+    """How much the handle's bar rises per metre along its axis, the part at its current state."""
+    assert task.handle_axis_world is not None
+    return float(T_world_part(task, [task.state_current])[0][2, :3] @ task.handle_axis_world)
 
 
 def _moved_along_bar(task: ArticulationTask, shift: float) -> ArticulationTask:
@@ -241,8 +246,7 @@ def level_bar_ends(task: ArticulationTask, clearance: float = BAR_END_CLEARANCE_
     centre lay 2-5 cm beyond its telescope (reseed-3 dishwashers; the bars run 0.21 m either side of it)."""
     if task.handle_extent is None or task.handle_axis_world is None:
         return ()
-    T = T_world_part(task, [task.state_current])[0]
-    if abs(float(T[2, :3] @ task.handle_axis_world)) >= LEVEL_BAR_AXIS_Z:
+    if abs(_bar_rise(task)) >= LEVEL_BAR_AXIS_Z:
         return ()
     below, above = task.handle_extent
     shifts = sorted((below + clearance, above - clearance), key=abs)

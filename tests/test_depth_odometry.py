@@ -104,6 +104,21 @@ def _with_door(T_world_camera: np.ndarray, depth: np.ndarray, grey: np.ndarray, 
     return np.where(leaf, s, depth), np.where(leaf, 110, grey).astype(np.uint8)
 
 
+def _turned_door_views():
+    """A still camera before a wall, a floor and a side wall, with a plain door in the wall closed (the target
+    view) and turned 25 deg towards the camera (the source view): (source, target, the turned leaf's pixels at
+    the source's map stride)."""
+    room = [(np.array([0.0, 0.0, -1.0]), -2.0), (np.array([0.0, -1.0, 0.0]), -0.6), (np.array([1.0, 0.0, 0.0]), 1.1)]
+    T = _pose([0, 0, 0], [0, 0, 0])
+    depth, grey = _render(T, room, _stripes)
+    closed = _with_door(T, depth, grey, 0.0)
+    turned = _with_door(T, depth, grey, np.radians(25.0))
+    usable = np.ones((H, W), bool)
+    target = depth_view(closed[1], closed[0], usable, K)
+    source = depth_view(turned[1], turned[0], usable, K)
+    return source, target, (turned[0] < closed[0] - 0.01)[:: source.stride, :: source.stride]
+
+
 def test_a_turning_door_is_left_out_of_the_second_registration():
     """A still camera before a wall, a floor and a side wall while a plain door in the wall turns
     25 deg. The turned leaf is off the keyframe's surface: it is found as a change and left out,
@@ -113,24 +128,15 @@ def test_a_turning_door_is_left_out_of_the_second_registration():
     without the door turned has no change."""
     from funrec.camera.depth_odometry import DepthOdometryConfig, _unchanged
 
-    room = [(np.array([0.0, 0.0, -1.0]), -2.0), (np.array([0.0, -1.0, 0.0]), -0.6), (np.array([1.0, 0.0, 0.0]), 1.1)]
-    T = _pose([0, 0, 0], [0, 0, 0])
-    depth, grey = _render(T, room, _stripes)
-    closed = _with_door(T, depth, grey, 0.0)
-    turned = _with_door(T, depth, grey, np.radians(25.0))
-    usable = np.ones((H, W), bool)
-    target = depth_view(closed[1], closed[0], usable, K)
-    source = depth_view(turned[1], turned[0], usable, K)
+    source, target, leaf = _turned_door_views()
     config = DepthOdometryConfig()
     keep = _unchanged(source, target, np.eye(4), 0.01, config)
     assert keep is not None
-    leaf = (turned[0] < closed[0] - 0.01)[:: source.stride, :: source.stride]
     assert not keep[leaf].any()  # every pixel of the turned leaf is left out
     assert keep[~leaf].mean() > 0.6  # most of the still room is kept (the margin takes a band around the leaf)
     assert _unchanged(target, target, np.eye(4), 0.01, config) is None
     fit = register_depth(source, target, _pose([0, 0, 0], [0.01, 0.0, 0.0]), config)
     assert fit is not None and np.linalg.norm(fit.T_target_source[:3, 3]) < 1e-3
-
 
 
 def test_a_change_the_first_registration_absorbed_is_still_left_out(monkeypatch):
@@ -144,15 +150,7 @@ def test_a_change_the_first_registration_absorbed_is_still_left_out(monkeypatch)
     import funrec.camera.depth_odometry as odometry
     from funrec.camera.depth_odometry import DepthOdometryConfig
 
-    room = [(np.array([0.0, 0.0, -1.0]), -2.0), (np.array([0.0, -1.0, 0.0]), -0.6), (np.array([1.0, 0.0, 0.0]), 1.1)]
-    T = _pose([0, 0, 0], [0, 0, 0])
-    depth, grey = _render(T, room, _stripes)
-    closed = _with_door(T, depth, grey, 0.0)
-    turned = _with_door(T, depth, grey, np.radians(25.0))
-    usable = np.ones((H, W), bool)
-    target = depth_view(closed[1], closed[0], usable, K)
-    source = depth_view(turned[1], turned[0], usable, K)
-    leaf = (turned[0] < closed[0] - 0.01)[:: source.stride, :: source.stride]
+    source, target, leaf = _turned_door_views()
     real_rounds, real_unchanged = odometry._rounds, odometry._unchanged
     T_first = _pose([0, 0, 0], [0.004, 0.0, 0.0])  # where the first registration went (4 mm off)
     kept = []
