@@ -29,7 +29,7 @@ from scipy.spatial.transform import Rotation
 
 from funrec.camera.features import DepthNoiseModel
 from funrec.geometry.camera import backproject
-from funrec.geometry.transforms import pose_difference
+from funrec.geometry.transforms import pose_difference, transform_points
 from funrec.typed import BoolArray, FloatArray, IntArray, UInt8Array
 
 
@@ -586,13 +586,20 @@ def _surface_distances(p_source: FloatArray, target: DepthView, T: FloatArray, d
 
 
 def surface_agreement(source: DepthView, target: DepthView, T_target_source: FloatArray,
-                      config: DepthOdometryConfig = DepthOdometryConfig()) -> float:  # noqa: B008
+                      config: DepthOdometryConfig = DepthOdometryConfig(),  # noqa: B008
+                      grey_tolerance: float | None = None) -> float:
     """Fraction of the source's usable points (final stride) that ``T_target_source`` puts on the target's
     surface, within the noise-derived distance of :func:`register_depth`: how well a pose found otherwise
-    (ORB matches) explains the two views' depth."""
+    (ORB matches) explains the two views' depth. With ``grey_tolerance`` (grey levels in [0, 1]), a point
+    must also land where the target's grey level is within it of its own, where both images have any: a
+    slide along a textured floor or counter leaves the depth on its plane but not the texture."""
     final = _final_distance(source, target, config)
-    p_source, _ = source.points(config.final_stride)
-    return float((_surface_distances(p_source, target, T_target_source, final) < final).mean())
+    p_source, grey = source.points(config.final_stride)
+    agrees = _surface_distances(p_source, target, T_target_source, final) < final
+    if grey_tolerance is not None and np.isfinite(target.intensity[0, 0]) and np.isfinite(grey).all():
+        residual, _ = _photometric(transform_points(T_target_source, p_source), grey, target)
+        agrees &= np.abs(residual) < grey_tolerance
+    return float(agrees.mean())
 
 
 __all__ = ["DepthFit", "DepthOdometryConfig", "DepthView", "depth_view", "register_depth", "surface_agreement"]

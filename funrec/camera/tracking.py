@@ -228,6 +228,19 @@ class TrackingConfig:
     camera with it whenever its corners outnumbered the room's (pri_drawer_02_r1: 13 cm in five frames,
     camera-only ATE 7.04 -> 0.37 cm; pri_drawer_02_r2 2.40 -> 0.33). False: the largest motion is the
     camera's (ablation)."""
+    second_motion_by_depth: bool = True
+    """Of two rigid motions of the corners (``second_motion``), the camera's is the one that puts more of the
+    frame's depth on the keyframe's surface (``surface_agreement``: dense, so a textured door's many corners do
+    not outvote the plain room around it); the prediction decides only where a frame has no depth view. False:
+    the motion nearer the constant-velocity prediction, which a door that started to move has already pulled
+    (ablation)."""
+    second_motion_grey_sigmas: float = 5.0
+    """... and where the grey level agrees too, within this many times the keyframe's image noise
+    (``image_noise_sigma``): depth alone does not see a slide along a plane, and a drawer pulled along a textured
+    floor and counter, its front and inside a large share of the view, out-agreed the room in depth alone
+    (multi_kitchen_00_r8: camera ATE 1.64 -> 5.28 cm). Measured as a fixed tolerance on rev_fridge_01_r7 and
+    multi_kitchen_00_r8: 0.02-0.04 (grey levels in [0, 1]) keeps the room in both, 0.06 takes the drawer; the
+    synthetic images' noise is 1.5 grey levels, so 5 sigmas is 0.029, and noisier real images get a wider one."""
     min_tracked_fraction: float = 0.3
     """Fewer registered frames than this fraction raise ReconstructionError."""
     seed: int = 0
@@ -373,20 +386,33 @@ def _corners_refute_closure(gray_source: UInt8Array, gray_target: UInt8Array, p_
 
 
 def _continuing_motion(fit: RigidFit, p_src: FloatArray, p_dst: FloatArray, tolerance: FloatArray, weights: FloatArray,
-                       T_predicted: FloatArray, rng: np.random.Generator, config: TrackingConfig) -> RigidFit:
-    """Of the largest rigid motion of the corners (``fit``) and the largest among the rest, the one nearer the
-    constant-velocity prediction (see ``TrackingConfig.second_motion``)."""
+                       T_predicted: FloatArray, rng: np.random.Generator, config: TrackingConfig,
+                       agreement: Callable[[FloatArray], float | None] | None = None) -> RigidFit:
+    """Of the largest rigid motion of the corners (``fit``) and the largest among the rest, the camera's (see
+    ``TrackingConfig.second_motion``): the one that puts more of the frame's depth on the keyframe's
+    (``agreement(T_keyframe_camera)``, see ``TrackingConfig.second_motion_by_depth``), else, without depth to
+    say, the one nearer the constant-velocity prediction ``T_predicted``."""
     rest = np.flatnonzero(~fit.inliers)
     if len(rest) < config.min_inliers or fit.inliers.sum() < config.min_inliers:
         return fit
     second = rigid_ransac(p_src[rest], p_dst[rest], tolerance[rest], weights[rest], rng, config.ransac_hypotheses)
     if second is None or second.inliers.sum() < config.min_inliers:
         return fit
+    by_depth = None
+    if agreement is not None and config.second_motion_by_depth:
+        first_agrees, second_agrees = agreement(fit.T_dst_src), agreement(second.T_dst_src)
+        if first_agrees is not None and second_agrees is not None:
+            by_depth = second_agrees > first_agrees
+            logger.debug("two rigid motions (%d and %d corners): depth agreement %.2f and %.2f", fit.inliers.sum(),
+                         second.inliers.sum(), first_agrees, second_agrees)
+    if by_depth is False:
+        return fit
     # nearer by how far each carries the corners from where the prediction puts them, not by translation alone:
     # a camera turning slowly in place near a door turning slowly has both motions ~2 cm from the prediction,
     # and the door's by 8 deg more (person_slow_rev_cabinet_00_r3: the door's motion taken 9 times, camera
     # ATE 0.63 -> 2.01 cm, the hinge 88 deg off)
-    if _offset_from(T_predicted, second.T_dst_src, p_src) >= _offset_from(T_predicted, fit.T_dst_src, p_src):
+    if by_depth is None and _offset_from(T_predicted, second.T_dst_src, p_src) >= _offset_from(T_predicted, fit.T_dst_src,
+                                                                                                 p_src):
         return fit
     inliers = np.zeros(len(p_src), dtype=bool)
     inliers[rest[second.inliers]] = True
@@ -587,6 +613,14 @@ def track_camera(capture: Capture, config: TrackingConfig = TrackingConfig(),
         source = frame.depth_view(K, config.depth_odometry) if target is not None else None
         return None if source is None else register_depth(source, target, T_guess, config.depth_odometry)
 
+    def agree_in_depth(frame: _FrameInput, keyframe: _FrameInput, T_keyframe_camera: FloatArray) -> float | None:
+        target = keyframe.depth_view(K, config.depth_odometry)
+        source = frame.depth_view(K, config.depth_odometry) if target is not None else None
+        if source is None:
+            return None
+        grey_tolerance = config.second_motion_grey_sigmas * image_noise_sigma(keyframe.gray) / 255.0
+        return surface_agreement(source, target, T_keyframe_camera, config.depth_odometry, grey_tolerance)
+
     frame = _read_frame(capture, 0, config)
     depth_keyframe = frame
     uv, p_keyframe, current = start_keyframe(0, frame, np.zeros((0, 2)), np.zeros((0, 3)))
@@ -648,7 +682,8 @@ def track_camera(capture: Capture, config: TrackingConfig = TrackingConfig(),
             fit = rigid_ransac(p_src, p_dst, tolerance, weights, rng, config.ransac_hypotheses,
                                prior_T_dst_src=T_node_previous)
             if config.second_motion and fit is not None:
-                fit = _continuing_motion(fit, p_src, p_dst, tolerance, weights, T_node_previous @ T_velocity, rng, config)
+                fit = _continuing_motion(fit, p_src, p_dst, tolerance, weights, T_node_previous @ T_velocity, rng, config,
+                                         partial(agree_in_depth, frame, depth_keyframe))
         features_ok = fit is not None and fit.inliers.sum() >= config.min_inliers
         if features_ok:
             T_features = _refine(fit, p_src, p_dst, K, config)
