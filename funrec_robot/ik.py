@@ -304,10 +304,12 @@ class WholeBodyIK:
         )
         distances = (config.collision_distance, config.arm_collision_distance, config.gripper_collision_distance,
                      config.wrist_collision_distance)
+        # The last group's pairs are the robot's own links (``_collision_pairs``): those kept off each other open up
+        # again when the IK's steps have let them creep inside their distance (``BoxedCollisionLimit.recover``).
         collision = [
-            BoxedCollisionLimit(model, pairs, gain=config.collision_gain, minimum_distance_from_collisions=distance,
-                                collision_detection_distance=config.collision_detection)
-            for pairs, distance in zip(groups, distances) if pairs
+            BoxedCollisionLimit(model, pairs, recover=k == len(groups) - 1, gain=config.collision_gain,
+                                minimum_distance_from_collisions=distance, collision_detection_distance=config.collision_detection)
+            for k, (pairs, distance) in enumerate(zip(groups, distances)) if pairs
         ]
         self.limits += shared_boxes(model, collision) if collision else []
 
@@ -431,6 +433,26 @@ class WholeBodyIK:
             return self.configuration.q[self.indices.qpos].copy(), e_p, e_r
         return q, position_error, orientation_error
 
+    def _step(self, tasks: list[mink.Task]) -> FloatArray:
+        """One QP step's joint velocities. Where the robot's own links, inside their distance, cannot open up again
+        within the other limits (``BoxedCollisionLimit.recover``), the step only keeps them from closing further."""
+        cfg = self.config
+        try:
+            return mink.solve_ik(self.configuration, tasks, cfg.step_time, cfg.solver, damping=cfg.damping,
+                                 limits=self.limits, constraints=self._active)
+        except mink.NoSolutionFound:
+            recovering = [limit for limit in self.limits if getattr(limit, "recover", False)]
+            if not recovering:
+                raise
+        for limit in recovering:
+            limit.recover = False
+        try:
+            return mink.solve_ik(self.configuration, tasks, cfg.step_time, cfg.solver, damping=cfg.damping,
+                                 limits=self.limits, constraints=self._active)
+        finally:
+            for limit in recovering:
+                limit.recover = True
+
     def _reached(self, position_error: float, orientation_error: float) -> bool:
         return position_error < self.config.position_tolerance and orientation_error < self.config.orientation_tolerance
 
@@ -451,10 +473,7 @@ class WholeBodyIK:
             if len(history) > cfg.stall_iterations and history[-1] > (1.0 - cfg.stall_fraction) * history[-1 - cfg.stall_iterations]:
                 break  # stalled: a limit (collision, joint range) holds the frame off its target
             try:
-                velocity = mink.solve_ik(
-                    configuration, tasks, cfg.step_time, cfg.solver, damping=cfg.damping, limits=self.limits,
-                    constraints=self._active,
-                )
+                velocity = self._step(tasks)
             except mink.NoSolutionFound as exc:
                 raise PlanningError(f"whole-body IK: the QP has no solution ({exc}); the robot may start in collision") from None
             configuration.integrate_inplace(velocity, cfg.step_time)
