@@ -67,8 +67,10 @@ class IKConfig:
     """Planned positions of hinges stay this far inside the position limits (room for the compliant controller
     to move the arm either way), rad."""
     limit_margin_m: float = 0.01
-    """The same for slides (a lift, a telescope's stages), m. At 0.05 m, as for hinges, TIAGo's torso stopped 5 cm
-    of its 35 cm below its top, and its pre-grasp missed wall-cabinet handles at 1.6 m by 8-59 mm."""
+    """The same for slides (a lift, a telescope's leading stage), m: the check's servos aim no closer than
+    ``controller.LIMIT_MARGIN_M`` (5 mm), and 5 mm more is the compliant controller's room. At 0.05 m, as for hinges,
+    TIAGo's torso stopped 5 cm of its 35 cm below its top, and its pre-grasp missed wall-cabinet handles at 1.6 m by
+    8-59 mm."""
     damping: float = 1e-3
     """Levenberg-Marquardt damping of the QP."""
     collision_distance: float = 0.05
@@ -106,9 +108,10 @@ class IKConfig:
 
 def joint_margins(robot: RobotDescription, model: mujoco.MjModel, config: IKConfig) -> FloatArray:
     """(nq,) how far inside its position limits the whole-body IK keeps each planning joint, rad or m:
-    ``limit_margin`` for a hinge, ``limit_margin_m`` for a slide, divided among a leader's coupled stages."""
+    ``limit_margin_m`` for a slide, the leader of a telescope's stages included (its servo's own margin is in
+    metres of that joint), ``limit_margin`` for a hinge, divided among a leader's coupled stages."""
     slide = [model.jnt_type[model.joint(ROBOT_PREFIX + name).id] == mujoco.mjtJoint.mjJNT_SLIDE for name in robot.joint_names]
-    return np.array([(config.limit_margin_m if s else config.limit_margin) / robot.stages(name)
+    return np.array([config.limit_margin_m if s else config.limit_margin / robot.stages(name)
                      for s, name in zip(slide, robot.joint_names)])
 
 
