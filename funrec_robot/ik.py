@@ -263,6 +263,7 @@ class WholeBodyIK:
         self.constraints = ([mink.DofFreezingTask(model, dof_indices=frozen)] if frozen else []) + coupling
         self.rolling_constraints = self.constraints
         self._active = self.constraints
+        self._holding_path = False
         self.differential = freeze_base
         if freeze_base and set(robot.base_motions) == {"x", "y", "yaw"}:
             dof = dict(zip(robot.base_motions, self.indices.dof))
@@ -320,7 +321,8 @@ class WholeBodyIK:
         distances = (config.collision_distance, config.arm_collision_distance, config.gripper_collision_distance,
                      config.wrist_collision_distance)
         # The last group's pairs are the robot's own links (``_collision_pairs``): those kept off each other open up
-        # again when the IK's steps have let them creep inside their distance (``BoxedCollisionLimit.recover``).
+        # again when the IK's steps have let them creep inside their distance, or inside where they started a solve
+        # or a path (``BoxedCollisionLimit.recover``).
         collision = [
             BoxedCollisionLimit(model, pairs, recover=k == len(groups) - 1, gain=config.collision_gain,
                                 minimum_distance_from_collisions=distance, collision_detection_distance=config.collision_detection)
@@ -422,6 +424,8 @@ class WholeBodyIK:
         """
         cfg = self.config
         self.configuration.update(self.full_q(q_seed, part_state, fingers))
+        if not self._holding_path:
+            self._hold_own_links()
         self.posture_task.set_target(self.full_q(q_posture, part_state, fingers))
         self.frame_task.set_target(mink.SE3.from_matrix(np.asarray(T_world_grasp, dtype=np.float64)))
         iterations = cfg.max_iterations if max_iterations is None else max_iterations
@@ -447,6 +451,13 @@ class WholeBodyIK:
         if self._reached(e_p, e_r) and float(np.abs(gravity[0].compute_error(self.configuration)).max()) < excess:
             return self.configuration.q[self.indices.qpos].copy(), e_p, e_r
         return q, position_error, orientation_error
+
+    def _hold_own_links(self) -> None:
+        """Hold the robot's own pairs (``BoxedCollisionLimit.recover``) at their distance, or where they lie closer
+        now (``BoxedCollisionLimit.hold_from``)."""
+        for limit in self.limits:
+            if getattr(limit, "recover", False):
+                limit.hold_from(self.configuration.data)
 
     def _step(self, tasks: list[mink.Task]) -> FloatArray:
         """One QP step's joint velocities. Where the robot's own links, inside their distance, cannot open up again
@@ -526,15 +537,23 @@ class WholeBodyIK:
         q_posture = np.asarray(q_posture, dtype=np.float64)
         q = np.asarray(q_start, dtype=np.float64)
         out, pos_err, rot_err = [], [], []
-        for T, state, posture in zip(T_world_grasp, states, q_posture):
-            check_time_limit("whole-body IK along the handle path")
-            reference = np.concatenate([posture[: self.n_base], q[self.n_base :]])
-            q, e_p, e_r = self.solve(T, q, reference, float(state), fingers, unload=unload, rolling=True)
-            out.append(q)
-            pos_err.append(e_p)
-            rot_err.append(e_r)
-            if give_up is not None and (e_p > give_up[0] or e_r > give_up[1]):
-                break
+        # The robot's own links are held where they start the path all along it: solve by solve, a pair creeping
+        # 0.1 mm per step would be held afresh wherever the last solve left it.
+        self.configuration.update(self.full_q(q, float(states[0]) if len(states) else 0.0, fingers))
+        self._hold_own_links()
+        self._holding_path = True
+        try:
+            for T, state, posture in zip(T_world_grasp, states, q_posture):
+                check_time_limit("whole-body IK along the handle path")
+                reference = np.concatenate([posture[: self.n_base], q[self.n_base :]])
+                q, e_p, e_r = self.solve(T, q, reference, float(state), fingers, unload=unload, rolling=True)
+                out.append(q)
+                pos_err.append(e_p)
+                rot_err.append(e_r)
+                if give_up is not None and (e_p > give_up[0] or e_r > give_up[1]):
+                    break
+        finally:
+            self._holding_path = False
         return IKResult(np.array(out), np.array(pos_err), np.array(rot_err))
 
 
