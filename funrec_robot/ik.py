@@ -305,9 +305,8 @@ class WholeBodyIK:
         others = np.setdiff1d(np.arange(model.nq), self.indices.qpos)
         position_limit.lower[others] = -mujoco.mjMAXVAL
         position_limit.upper[others] = mujoco.mjMAXVAL
-        # A slide keeps its margin in metres (``limit_margin_m``). A leader of coupled joints (a telescoping arm's
-        # stages) moves the hand by the sum of their motions: its margin is the same room for the hand, so the
-        # leader's share of it.
+        # Each planning joint keeps ``joint_margins``: a slide its margin in metres (``limit_margin_m``), a hinge
+        # ``limit_margin``, its share of it for a hinge that leads coupled joints (the same room for the hand).
         for k, margin in enumerate(joint_margins(robot, model, config)):
             joint = int(model.joint(ROBOT_PREFIX + robot.joint_names[k]).id)
             if model.jnt_limited[joint]:
