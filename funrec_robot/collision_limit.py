@@ -69,9 +69,15 @@ class BoxedCollisionLimit(mink.CollisionAvoidanceLimit):
     (its own, or one shared with other limits: :func:`shared_boxes`), and its bound in the QP's units: a step
     closes at most ``gain`` of the gap beyond the minimum distance (mink 1.3 allows ``gain / dt`` of it)."""
 
-    def __init__(self, model: mujoco.MjModel, geom_pairs: list, **kwargs: float) -> None:
+    def __init__(self, model: mujoco.MjModel, geom_pairs: list, recover: bool = False, **kwargs: float) -> None:
         super().__init__(model, geom_pairs, **kwargs)
         self.use_boxes(GeomBoxes(model, self.geom_id_pairs), 0)
+        self.recover = recover
+        """A pair closer than its floor (the minimum distance, or less where :meth:`hold_from` found it closer) must
+        open up again by ``gain`` of its shortfall per step (mink's bound, 0 there, only stops it closing to first
+        order; see :meth:`compute_qp_inequalities`)."""
+        self.floors = np.full(len(self.geom_id_pairs), self.minimum_distance_from_collisions)
+        """(P,) the distance each pair is held at, m."""
 
     def _construct_geom_id_pairs(self, geom_pairs: list) -> list[tuple[int, int]]:
         """mink's pairs, in mink's order: every geom of one group with every geom of the other, but geoms of one body
@@ -91,6 +97,16 @@ class BoxedCollisionLimit(mink.CollisionAvoidanceLimit):
             keep = (weld[body_a] != weld[body_b]) & ~parent_child & contacts
             pairs += zip(np.minimum(a, b)[keep].tolist(), np.maximum(a, b)[keep].tolist())
         return list(set(pairs))
+
+    def hold_from(self, data: mujoco.MjData) -> None:
+        """Hold each pair at the minimum distance, or at its distance in ``data`` where that is less: a pair that
+        starts a solve closer (Fetch's shoulder lift link lies 2 mm from its torso at home) is not pushed open, only
+        kept from closing further."""
+        self.floors[:] = self.minimum_distance_from_collisions
+        for idx in np.flatnonzero(self.lower_distances(data) < self.minimum_distance_from_collisions):
+            geom1, geom2 = self.geom_id_pairs[idx]
+            dist = mujoco.mj_geomDistance(self.model, data, geom1, geom2, self.minimum_distance_from_collisions, self._fromto)
+            self.floors[idx] = min(self.floors[idx], dist)
 
     def use_boxes(self, boxes: GeomBoxes, first_pair: int) -> None:
         """Take the broad phase from ``boxes``, whose pairs hold this limit's from row ``first_pair`` on."""
@@ -116,7 +132,16 @@ class BoxedCollisionLimit(mink.CollisionAvoidanceLimit):
             # once more, which lets a step close 1 / dt = 50 times the gap's share: Spot's open jaw, 6.8 mm from the
             # cabinet row around pri_drawer_00's drawer (1.5 mm kept), closed 7.8 mm in one step and ended its
             # approach 2.5 mm inside the row; the row held it there (at the kept distance the bound is 0).
-            gap = self.gain * (dist - min_dist) if dist > min_dist else 0.0
+            # Held at its bound (0 at the minimum distance), a pair still closes at second order: the first-order row
+            # is tangent to the gap. Fetch's shoulder lift link, rotating with the shoulder pan about an axis beside
+            # the torso, crept 0.1 mm per IK step along a door's path from the 5 mm kept to 0.8 mm inside the torso's
+            # 1 mm contact margin; the pan servo then pushed 18-50 N m (of 33.8) against that contact. With
+            # ``recover`` the bound below its floor is negative: the pair opens up again.
+            if self.recover:
+                floor = min(min_dist, float(self.floors[idx]))
+                gap = self.gain * (dist - floor) if dist > min_dist or dist < floor else 0.0
+            else:
+                gap = self.gain * (dist - min_dist) if dist > min_dist else 0.0
             bounds.append(gap + self.bound_relaxation)
             rows.append((-1.0 if dist >= 0 else 1.0) * row)
         if not rows:

@@ -64,8 +64,13 @@ class IKConfig:
     rolling solve left it off the line of its placed heading (``whole_body``); the planner sets it for a telescoping
     arm, whose reach runs across that line (TIAGo's jointed arm lost 2 of 17 ground-truth parts with it)."""
     limit_margin: float = 0.05
-    """Planned joint positions stay this far inside the position limits (room for the compliant controller
-    to move the arm either way), rad or m."""
+    """Planned positions of hinges stay this far inside the position limits (room for the compliant controller
+    to move the arm either way), rad."""
+    limit_margin_m: float = 0.01
+    """The same for slides (a lift, a telescope's leading stage), m: the check's servos aim no closer than
+    ``controller.LIMIT_MARGIN_M`` (5 mm), and 5 mm more is the compliant controller's room. At 0.05 m, as for hinges,
+    TIAGo's torso stopped 5 cm of its 35 cm below its top, and its pre-grasp missed wall-cabinet handles at 1.6 m by
+    8-59 mm."""
     damping: float = 1e-3
     """Levenberg-Marquardt damping of the QP."""
     collision_distance: float = 0.05
@@ -99,6 +104,15 @@ class IKConfig:
     """Share of a joint's effort limit that gravity may take before that task pulls, 1."""
     gravity_iterations: int = 15
     """Differential-IK steps spent unloading the arm after a target is reached."""
+
+
+def joint_margins(robot: RobotDescription, model: mujoco.MjModel, config: IKConfig) -> FloatArray:
+    """(nq,) how far inside its position limits the whole-body IK keeps each planning joint, rad or m:
+    ``limit_margin_m`` for a slide, the leader of a telescope's stages included (its servo's own margin is in
+    metres of that joint), ``limit_margin`` for a hinge, divided among a leader's coupled stages."""
+    slide = [model.jnt_type[model.joint(ROBOT_PREFIX + name).id] == mujoco.mjtJoint.mjJNT_SLIDE for name in robot.joint_names]
+    return np.array([config.limit_margin_m if s else config.limit_margin / robot.stages(name)
+                     for s, name in zip(slide, robot.joint_names)])
 
 
 @dataclass(frozen=True)
@@ -249,6 +263,7 @@ class WholeBodyIK:
         self.constraints = ([mink.DofFreezingTask(model, dof_indices=frozen)] if frozen else []) + coupling
         self.rolling_constraints = self.constraints
         self._active = self.constraints
+        self._holding_path = False
         self.differential = freeze_base
         if freeze_base and set(robot.base_motions) == {"x", "y", "yaw"}:
             dof = dict(zip(robot.base_motions, self.indices.dof))
@@ -290,24 +305,27 @@ class WholeBodyIK:
         others = np.setdiff1d(np.arange(model.nq), self.indices.qpos)
         position_limit.lower[others] = -mujoco.mjMAXVAL
         position_limit.upper[others] = mujoco.mjMAXVAL
-        # A leader of coupled joints (a telescoping arm's stages) moves the hand by the sum of their motions:
-        # its margin is the same room for the hand, so the leader's share of it.
-        for k, name in enumerate(robot.joint_names):
-            stages = robot.stages(name)
-            if stages > 1.0:
+        # Each planning joint keeps ``joint_margins``: a slide its margin in metres (``limit_margin_m``), a hinge
+        # ``limit_margin``, its share of it for a hinge that leads coupled joints (the same room for the hand).
+        for k, margin in enumerate(joint_margins(robot, model, config)):
+            joint = int(model.joint(ROBOT_PREFIX + robot.joint_names[k]).id)
+            if model.jnt_limited[joint]:
                 qadr = self.indices.qpos[k]
-                position_limit.lower[qadr] -= config.limit_margin * (1.0 - 1.0 / stages)
-                position_limit.upper[qadr] += config.limit_margin * (1.0 - 1.0 / stages)
+                position_limit.lower[qadr] = model.jnt_range[joint, 0] + margin
+                position_limit.upper[qadr] = model.jnt_range[joint, 1] - margin
         self.limits: list[mink.Limit] = [position_limit, mink.VelocityLimit(model, velocities)]
         groups = self._collision_pairs(
             np.atleast_2d(np.asarray(region_world, dtype=np.float64)), np.asarray(allowed_geoms, dtype=np.int64)
         )
         distances = (config.collision_distance, config.arm_collision_distance, config.gripper_collision_distance,
                      config.wrist_collision_distance)
+        # The last group's pairs are the robot's own links (``_collision_pairs``): those kept off each other open up
+        # again when the IK's steps have let them creep inside their distance, or inside where they started a solve
+        # or a path (``BoxedCollisionLimit.recover``).
         collision = [
-            BoxedCollisionLimit(model, pairs, gain=config.collision_gain, minimum_distance_from_collisions=distance,
-                                collision_detection_distance=config.collision_detection)
-            for pairs, distance in zip(groups, distances) if pairs
+            BoxedCollisionLimit(model, pairs, recover=k == len(groups) - 1, gain=config.collision_gain,
+                                minimum_distance_from_collisions=distance, collision_detection_distance=config.collision_detection)
+            for k, (pairs, distance) in enumerate(zip(groups, distances)) if pairs
         ]
         self.limits += shared_boxes(model, collision) if collision else []
 
@@ -405,6 +423,8 @@ class WholeBodyIK:
         """
         cfg = self.config
         self.configuration.update(self.full_q(q_seed, part_state, fingers))
+        if not self._holding_path:
+            self._hold_own_links()
         self.posture_task.set_target(self.full_q(q_posture, part_state, fingers))
         self.frame_task.set_target(mink.SE3.from_matrix(np.asarray(T_world_grasp, dtype=np.float64)))
         iterations = cfg.max_iterations if max_iterations is None else max_iterations
@@ -431,6 +451,33 @@ class WholeBodyIK:
             return self.configuration.q[self.indices.qpos].copy(), e_p, e_r
         return q, position_error, orientation_error
 
+    def _hold_own_links(self) -> None:
+        """Hold the robot's own pairs (``BoxedCollisionLimit.recover``) at their distance, or where they lie closer
+        now (``BoxedCollisionLimit.hold_from``)."""
+        for limit in self.limits:
+            if getattr(limit, "recover", False):
+                limit.hold_from(self.configuration.data)
+
+    def _step(self, tasks: list[mink.Task]) -> FloatArray:
+        """One QP step's joint velocities. Where the robot's own links, inside their distance, cannot open up again
+        within the other limits (``BoxedCollisionLimit.recover``), the step only keeps them from closing further."""
+        cfg = self.config
+        try:
+            return mink.solve_ik(self.configuration, tasks, cfg.step_time, cfg.solver, damping=cfg.damping,
+                                 limits=self.limits, constraints=self._active)
+        except mink.NoSolutionFound:
+            recovering = [limit for limit in self.limits if getattr(limit, "recover", False)]
+            if not recovering:
+                raise
+        for limit in recovering:
+            limit.recover = False
+        try:
+            return mink.solve_ik(self.configuration, tasks, cfg.step_time, cfg.solver, damping=cfg.damping,
+                                 limits=self.limits, constraints=self._active)
+        finally:
+            for limit in recovering:
+                limit.recover = True
+
     def _reached(self, position_error: float, orientation_error: float) -> bool:
         return position_error < self.config.position_tolerance and orientation_error < self.config.orientation_tolerance
 
@@ -451,10 +498,7 @@ class WholeBodyIK:
             if len(history) > cfg.stall_iterations and history[-1] > (1.0 - cfg.stall_fraction) * history[-1 - cfg.stall_iterations]:
                 break  # stalled: a limit (collision, joint range) holds the frame off its target
             try:
-                velocity = mink.solve_ik(
-                    configuration, tasks, cfg.step_time, cfg.solver, damping=cfg.damping, limits=self.limits,
-                    constraints=self._active,
-                )
+                velocity = self._step(tasks)
             except mink.NoSolutionFound as exc:
                 raise PlanningError(f"whole-body IK: the QP has no solution ({exc}); the robot may start in collision") from None
             configuration.integrate_inplace(velocity, cfg.step_time)
@@ -492,16 +536,24 @@ class WholeBodyIK:
         q_posture = np.asarray(q_posture, dtype=np.float64)
         q = np.asarray(q_start, dtype=np.float64)
         out, pos_err, rot_err = [], [], []
-        for T, state, posture in zip(T_world_grasp, states, q_posture):
-            check_time_limit("whole-body IK along the handle path")
-            reference = np.concatenate([posture[: self.n_base], q[self.n_base :]])
-            q, e_p, e_r = self.solve(T, q, reference, float(state), fingers, unload=unload, rolling=True)
-            out.append(q)
-            pos_err.append(e_p)
-            rot_err.append(e_r)
-            if give_up is not None and (e_p > give_up[0] or e_r > give_up[1]):
-                break
+        # The robot's own links are held where they start the path all along it: solve by solve, a pair creeping
+        # 0.1 mm per step would be held afresh wherever the last solve left it.
+        self.configuration.update(self.full_q(q, float(states[0]) if len(states) else 0.0, fingers))
+        self._hold_own_links()
+        self._holding_path = True
+        try:
+            for T, state, posture in zip(T_world_grasp, states, q_posture):
+                check_time_limit("whole-body IK along the handle path")
+                reference = np.concatenate([posture[: self.n_base], q[self.n_base :]])
+                q, e_p, e_r = self.solve(T, q, reference, float(state), fingers, unload=unload, rolling=True)
+                out.append(q)
+                pos_err.append(e_p)
+                rot_err.append(e_r)
+                if give_up is not None and (e_p > give_up[0] or e_r > give_up[1]):
+                    break
+        finally:
+            self._holding_path = False
         return IKResult(np.array(out), np.array(pos_err), np.array(rot_err))
 
 
-__all__ = ["IKConfig", "IKResult", "WholeBodyIK"]
+__all__ = ["IKConfig", "IKResult", "WholeBodyIK", "joint_margins"]

@@ -501,8 +501,8 @@ def _floor_refusal(
     under. Checked only where every grasp leaves the wrist little horizontal room (a handle high or low)."""
     config = handle.config
     r_max = geometry.reach * config.placement.r_max_fraction
-    # The IK keeps a lift ``limit_margin`` inside its range, as every joint.
-    margin = config.ik.limit_margin
+    # The IK keeps a lift, a slide, ``limit_margin_m`` inside its range.
+    margin = config.ik.limit_margin_m
     lift_down, lift_up = (geometry.lift_range[0] + margin, geometry.lift_range[1] - margin) if geometry.lift_range else (0.0, 0.0)
     targets = []
     for candidate in handle.candidates:
@@ -957,9 +957,9 @@ def _plan_interaction(robot: RobotDescription, scene_xml: str | Path, task: Arti
             start, settled = rest, {"from": task.state_current, "to": rest}
     if geometry.lift_range is not None and not robot.base_lift:
         # An upright bar is taken where the lift serves, then the torso or mast starts at that height; the IK moves it on.
-        task = along_bar_to_lift(geometry, task, config.ik.limit_margin)
+        task = along_bar_to_lift(geometry, task, config.ik.limit_margin_m)
     if geometry.lift_range is not None:
-        robot = lifted(robot, geometry, handle_height(task), config.ik.limit_margin)
+        robot = lifted(robot, geometry, handle_height(task), config.ik.limit_margin_m)
         geometry = measure_robot(robot)
     if geometry.reach_min > 0.0 and robot.drive == "differential":
         # A telescoping arm reaches along a line the base's heading sets: a turn of the base swings it all. Its

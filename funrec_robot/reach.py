@@ -24,7 +24,7 @@ from funrec_robot.task import ArticulationTask, T_world_part
 LIFT_ABOVE_HANDLE_M = 0.1
 """A lift puts the shoulder this far above the handle (the arm pulls best from slightly above), m."""
 LIFT_MARGIN_M = 0.01
-"""... and stays this far inside the range the whole-body IK keeps joints in (``IKConfig.limit_margin`` inside
+"""... and stays this far inside the range the whole-body IK keeps a slide in (``IKConfig.limit_margin_m`` inside
 the lift's limits): a lift started within that margin made the IK's QP infeasible from its first step, m."""
 
 

@@ -12,7 +12,6 @@ import mujoco
 import numpy as np
 
 from funrec.typed import FloatArray
-from funrec_robot.ik import IKConfig
 from funrec_robot.robot import RobotDescription
 from funrec_robot.scene import box_corners, geom_boxes, subtree_bodies
 from funrec_robot.sim_model import (
@@ -31,6 +30,11 @@ TURRET_RIM_POINTS = 16
 """Points on the rim of an arm's turret disc tested against the base's discs (``_turret_circle``)."""
 FOOTPRINT_CELL_M = 0.3
 """Largest side of the cells whose circumscribed circles cover a footprint rectangle, m."""
+
+TELESCOPE_MARGIN_M = 0.05
+"""How far inside its travel base placement measures a telescoping arm's reach from, at either end, m: the whole-body
+IK's margin for hinges, which it kept for slides too until ``IKConfig.limit_margin_m``; placement was tuned on it
+(Stretch 3), and the IK keeps the 4 cm beyond it as room."""
 
 
 @dataclass(frozen=True)
@@ -247,7 +251,7 @@ def _shoulder_reach(
     wrist can take lie on one line, the slide's, not in a ball about the slide's base. Its "shoulder" is the end of
     the telescope (the anchor of the first joint after the last slide) with the slides drawn in to their limits,
     and the reach runs from there along the slide: ``reach_min`` and ``reach`` are how far the end moves with the
-    slides (and the joints coupled to them) as far in and out as the whole-body IK moves them. Base placement's
+    slides (and the joints coupled to them) drawn in and out to ``TELESCOPE_MARGIN_M`` inside their limits. Base placement's
     ball about that point, with its facing cost along the slide, then holds what the telescope reaches: a point on
     the line at the distance the slide moves it, and off the line only what a turn of the base brings onto it.
     (Measured from the slide's base instead, the ball took wrist targets 8 cm off Stretch 3's line, 4 cm beyond
@@ -265,8 +269,8 @@ def _shoulder_reach(
     ends = []
     for side, limits, inset in ((1.0, robot.q_min, 0.0), (1.0, robot.q_min, 1.0), (-1.0, robot.q_max, 1.0)):
         for k in slides:
-            # the travel the whole-body IK uses: its limit margin inside the limits, the leader's share of it
-            margin = inset * IKConfig().limit_margin / robot.stages(robot.arm_joints[k])
+            # the travel base placement counts on: ``TELESCOPE_MARGIN_M`` inside the limits, the leader's share of it
+            margin = inset * TELESCOPE_MARGIN_M / robot.stages(robot.arm_joints[k])
             data.qpos[indices.qpos[k0 + k]] = limits[k0 + k] + side * margin
         apply_couplings(indices, data.qpos)
         mujoco.mj_kinematics(model, data)

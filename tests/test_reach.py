@@ -19,8 +19,8 @@ from funrec_robot.reach import (
 )
 from funrec_robot.task import ArticulationTask
 
-MARGIN = 0.05
-"""The whole-body IK's limit margin (``IKConfig.limit_margin``), m."""
+MARGIN = 0.01
+"""The whole-body IK's limit margin for a slide such as a lift (``IKConfig.limit_margin_m``), m."""
 
 # A fridge door hinged about z at x = 0; its upright bar runs 0.97-1.47 m, the contact point at its middle (1.22 m,
 # rev_fridge_01_r3's bar).

@@ -126,3 +126,34 @@ def test_fetch_ik_keeps_its_upper_arm_off_its_torso(fetch, model) -> None:
              for lim in limits for a, b in lim.geom_id_pairs}
     assert frozenset(("robot/robot0:torso_lift_link", "robot/robot0:shoulder_lift_link")) in names
     assert limits[-1].minimum_distance_from_collisions == IKConfig().wrist_collision_distance
+
+
+def test_fetch_ik_holds_its_upper_arm_where_the_path_starts(fetch, model) -> None:
+    """Held at its bound, the shoulder lift link crept towards the torso at second order (0.1 mm per IK step; on
+    plain_rev_fridge_00_r3 from 5 mm to 0.8 mm along the door's path, inside the torso's 1 mm contact margin, and the
+    pan servo pushed 18-50 N m of its 33.8 against the contact). From 2.6 mm apart (that plan's arm, 14 s into the
+    door's swing), three 1 cm steps of the hand backwards: the robot's own pairs are held where the path started them,
+    within the 0.1 mm the half-gap gain leaves of a creep that size (not pushed open to their 5 mm: Fetch's arm lies
+    2 mm from its torso at home); held only at the bound, as mink does, they end 0.4 mm closer."""
+    from funrec_robot.ik import IKConfig, WholeBodyIK
+
+    q = np.array([-2.07, 0.486, 0.96, -1.016, 1.594, 2.201, 1.129, -1.918, -1.02])
+    torso = model.geom(ROBOT_PREFIX + "robot0:torso_lift_link").id
+    upper = model.geom(ROBOT_PREFIX + "robot0:shoulder_lift_link").id
+    gaps = {}
+    for recover in (True, False):
+        ik = WholeBodyIK(fetch, model, 0, np.zeros((1, 3)), [], IKConfig())
+        limits = [limit for limit in ik.limits if getattr(limit, "recover", False)]
+        assert len(limits) == 1
+        limits[0].recover = recover
+        T = ik.grasp_pose(q, 0.0, fetch.gripper.open)
+        start = mujoco.mj_geomDistance(model, ik.configuration.data, torso, upper, 0.1, np.zeros(6))
+        targets = np.repeat(T[None], 3, axis=0)
+        targets[:, 0, 3] -= [0.01, 0.02, 0.03]
+        result = ik.track(targets, np.zeros(3), q, np.repeat(q[None], 3, axis=0), fetch.gripper.open)
+        assert result.position_error.max() < ik.config.position_tolerance
+        ik.grasp_pose(result.q[-1], 0.0, fetch.gripper.open)
+        gaps[recover] = mujoco.mj_geomDistance(model, ik.configuration.data, torso, upper, 0.1, np.zeros(6))
+    assert start == pytest.approx(0.0026, abs=2e-4)
+    assert gaps[True] > start - 1e-4, (start, gaps)
+    assert gaps[False] < start - 2e-4, (start, gaps)

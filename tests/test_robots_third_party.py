@@ -462,3 +462,35 @@ def test_spot_opens_a_drop_down_door_to_its_stop_and_lets_go_with_its_jaw_clear_
     assert plan.target_state == pytest.approx(task.state_range[1], abs=0.01)
     report = check_plan(plan, robot, gt / "scene.xml")
     assert report.passed and report.peak_handle_force <= 50.0, report.failures
+
+
+def test_the_ik_keeps_slides_a_centimetre_inside_their_limits(tiago) -> None:
+    """The IK's 0.05 margin was radians for hinges and metres for slides alike: TIAGo's torso stopped 5 cm of its
+    35 cm below its top, and its pre-grasp missed wall-cabinet handles at 1.6 m by 8-59 mm (dark_rev_glass_wall_00_r3,
+    light_harsh_rev_wall_00_r7). A slide keeps ``limit_margin_m`` (1 cm), a telescope's leader too, and the check's
+    servos aim up to 5 mm from a slide's limits, inside that; hinges keep 0.05 rad and their servos 0.02."""
+    from funrec_robot.ik import IKConfig, WholeBodyIK, joint_margins
+    from funrec_robot.sim_model import build_mujoco_model
+
+    robot, _ = tiago
+    model = build_mujoco_model(robot)
+    ik = WholeBodyIK(robot, model, 0, np.zeros((1, 3)), [])
+    limit = ik.limits[0]
+    torso, shoulder = (robot.joint_names.index(n) for n in ("torso_lift_joint", "arm_2_joint"))
+    assert limit.upper[ik.indices.qpos[torso]] == pytest.approx(0.35 - 0.01)
+    assert limit.lower[ik.indices.qpos[torso]] == pytest.approx(0.0 + 0.01)
+    assert limit.upper[ik.indices.qpos[shoulder]] == pytest.approx(robot.q_max[shoulder] - 0.05)
+    stretch, _ = _loaded("stretch3")
+    margins = joint_margins(stretch, build_mujoco_model(stretch), IKConfig())
+    leader = stretch.joint_names.index("joint_arm_l0")
+    assert margins[leader] == pytest.approx(0.01)
+    assert margins[stretch.joint_names.index("joint_lift")] == pytest.approx(0.01)
+    assert margins[stretch.joint_names.index("joint_wrist_yaw")] == pytest.approx(0.05)
+    from funrec_robot.controller import ServoModel
+    from funrec_robot.sim_model import robot_indices
+
+    servos = ServoModel.of(model, robot_indices(robot, model).actuators)
+    target = servos.within_limits(np.full(robot.nq, 10.0))
+    assert target[torso] == pytest.approx(0.35 - 0.005)
+    assert target[shoulder] == pytest.approx(robot.q_max[shoulder] - 0.02)
+    assert 0.35 - 0.005 > limit.upper[ik.indices.qpos[torso]]  # the plan's torso lies within the servo's reach
