@@ -75,10 +75,8 @@ def track_klt(
         pyramid_levels: number of coarser pyramid levels (0 = single scale).
         max_forward_backward_px: a point whose round trip 0 -> 1 -> 0 misses its start by
             more than this is rejected (occlusion, sliding along an edge).
-        uv1_guess: (N, 2) where each point is expected in frame 1: the search starts there, and the
-            backward pass as far from the found position as the guess was from the start (a large
-            motion the guess foresaw is not asked of the backward pass from a standing start);
-            None: where it was in frame 0, and the backward pass where it was found.
+        uv1_guess: (N, 2) where each point is expected in frame 1 (the search starts there and
+            the backward pass at the found position); None: where it was in frame 0.
 
     Returns:
         uv1: (N, 2) positions in frame 1 (meaningless where not ok).
@@ -98,12 +96,7 @@ def track_klt(
     else:
         guess = uv1_guess.astype(np.float32).reshape(-1, 1, 2)
         p1, status1, _ = cv2.calcOpticalFlowPyrLK(gray0, gray1, p0, guess, flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **params)
-    if uv1_guess is None:
-        p0_back, status0, _ = cv2.calcOpticalFlowPyrLK(gray1, gray0, p1, None, **params)
-    else:
-        back_guess = p1 - (guess - p0)
-        p0_back, status0, _ = cv2.calcOpticalFlowPyrLK(gray1, gray0, p1, back_guess, flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
-                                                      **params)
+    p0_back, status0, _ = cv2.calcOpticalFlowPyrLK(gray1, gray0, p1, None, **params)
     uv1 = p1.reshape(-1, 2).astype(np.float64)
     round_trip = np.linalg.norm(p0_back.reshape(-1, 2) - uv0, axis=1)
     H, W = gray1.shape

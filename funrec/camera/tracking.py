@@ -228,12 +228,6 @@ class TrackingConfig:
     camera with it whenever its corners outnumbered the room's (pri_drawer_02_r1: 13 cm in five frames,
     camera-only ATE 7.04 -> 0.37 cm; pri_drawer_02_r2 2.40 -> 0.33). False: the largest motion is the
     camera's (ablation)."""
-    klt_predicted_start: bool = True
-    """KLT starts each corner where the constant-velocity prediction of the camera puts it (its keyframe
-    point projected), and a corner lost from there is tracked again from where it was: a head turning 5-8 deg
-    a frame moves the image 50-80 px, at the edge of what three pyramid levels find from a standing start
-    (light_changing_static_00_r7: 262 corners seeded in frame 91, 23 tracked into frame 92, the camera left to
-    depth on a plain wall and 40 cm off). False: every corner starts where it was (ablation)."""
     second_motion_by_depth: bool = True
     """Of two rigid motions of the corners (``second_motion``), the camera's is the one that puts more of the
     frame's depth on the keyframe's surface (``surface_agreement``: dense, so a textured door's many corners do
@@ -424,27 +418,6 @@ def _continuing_motion(fit: RigidFit, p_src: FloatArray, p_dst: FloatArray, tole
     inliers[rest[second.inliers]] = True
     logger.debug("a second rigid motion (%d corners against %d) continues the camera's", inliers.sum(), fit.inliers.sum())
     return replace(second, inliers=inliers)
-
-
-def _track_corners(previous_gray: UInt8Array, gray: UInt8Array, uv: FloatArray, p_keyframe: FloatArray,
-                   T_keyframe_predicted: FloatArray, K: FloatArray, config: TrackingConfig) -> tuple[FloatArray, BoolArray]:
-    """KLT of the corners into the next frame, each started where the constant-velocity prediction
-    ``T_keyframe_predicted`` puts its keyframe point ``p_keyframe`` (see ``TrackingConfig.klt_predicted_start``);
-    those lost from there are tracked again from where they were."""
-    track = partial(track_klt, previous_gray, gray, window_px=config.klt_window_px,
-                    pyramid_levels=config.klt_pyramid_levels, max_forward_backward_px=config.klt_max_forward_backward_px)
-    if not config.klt_predicted_start or len(uv) == 0:
-        return track(uv)
-    uv_predicted, z = project(transform_points(invert_transform(T_keyframe_predicted), p_keyframe), K)
-    usable = (z > 0) & np.isfinite(uv_predicted).all(axis=1)
-    start = np.where(usable[:, None], uv_predicted, uv)
-    if np.median(np.linalg.norm(start - uv, axis=1)) < 1.0:  # a still camera: the prediction changes nothing
-        return track(uv)
-    uv_next, ok = track(uv, uv1_guess=start)
-    lost = np.flatnonzero(~ok)
-    if len(lost):
-        uv_next[lost], ok[lost] = track(uv[lost])
-    return uv_next, ok
 
 
 def _offset_from(T_predicted: FloatArray, T: FloatArray, p: FloatArray) -> float:
@@ -696,7 +669,8 @@ def track_camera(capture: Capture, config: TrackingConfig = TrackingConfig(),
 
     for frame_index in range(1, F):
         frame = _read_frame(capture, frame_index, config)
-        uv, ok = _track_corners(previous_gray, frame.gray, uv, p_keyframe, T_node_previous @ T_velocity, K, config)
+        uv, ok = track_klt(previous_gray, frame.gray, uv, config.klt_window_px, config.klt_pyramid_levels,
+                           config.klt_max_forward_backward_px)
         ok &= mask_at(frame.hand_free, uv)
         uv, p_keyframe = uv[ok], p_keyframe[ok]
         p_camera = _lift(frame, uv, K, config)
