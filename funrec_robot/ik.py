@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from functools import partial
 
 import mink
 import mujoco
@@ -328,6 +329,8 @@ class WholeBodyIK:
             for k, (pairs, distance) in enumerate(zip(groups, distances)) if pairs
         ]
         self.limits += shared_boxes(model, collision) if collision else []
+        self._own_links = [limit for limit in collision if limit.recover]
+        """The limits that keep the robot's own links apart (``BoxedCollisionLimit.recover``)."""
 
     def _coupled_dofs(self, planning: set[int]) -> list[tuple[int, int, float]]:
         """(follower dof, leader dof, ratio) of the coupled joints whose leader the IK moves."""
@@ -454,28 +457,26 @@ class WholeBodyIK:
     def _hold_own_links(self) -> None:
         """Hold the robot's own pairs (``BoxedCollisionLimit.recover``) at their distance, or where they lie closer
         now (``BoxedCollisionLimit.hold_from``)."""
-        for limit in self.limits:
-            if getattr(limit, "recover", False):
-                limit.hold_from(self.configuration.data)
+        for limit in self._own_links:
+            limit.hold_from(self.configuration.data)
 
     def _step(self, tasks: list[mink.Task]) -> FloatArray:
         """One QP step's joint velocities. Where the robot's own links, inside their distance, cannot open up again
         within the other limits (``BoxedCollisionLimit.recover``), the step only keeps them from closing further."""
         cfg = self.config
+        solve = partial(mink.solve_ik, self.configuration, tasks, cfg.step_time, cfg.solver, damping=cfg.damping,
+                        limits=self.limits, constraints=self._active)
         try:
-            return mink.solve_ik(self.configuration, tasks, cfg.step_time, cfg.solver, damping=cfg.damping,
-                                 limits=self.limits, constraints=self._active)
+            return solve()
         except mink.NoSolutionFound:
-            recovering = [limit for limit in self.limits if getattr(limit, "recover", False)]
-            if not recovering:
+            if not self._own_links:
                 raise
-        for limit in recovering:
+        for limit in self._own_links:
             limit.recover = False
         try:
-            return mink.solve_ik(self.configuration, tasks, cfg.step_time, cfg.solver, damping=cfg.damping,
-                                 limits=self.limits, constraints=self._active)
+            return solve()
         finally:
-            for limit in recovering:
+            for limit in self._own_links:
                 limit.recover = True
 
     def _reached(self, position_error: float, orientation_error: float) -> bool:

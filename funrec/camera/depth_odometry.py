@@ -373,6 +373,11 @@ def _projected(p: FloatArray, K: FloatArray, images: tuple[np.ndarray, ...], sca
     return inside, value, grad
 
 
+def _has_grey(target: DepthView, grey_source: FloatArray) -> bool:
+    """Whether both images carry grey levels to compare (a flat image's intensity is NaN everywhere)."""
+    return bool(np.isfinite(target.intensity[0, 0]) and np.isfinite(grey_source).all())
+
+
 def _photometric(p: FloatArray, grey_source: FloatArray, target: DepthView) -> tuple[FloatArray, FloatArray]:
     """Grey-level residuals I_target(project(p)) - I_source and their gradients d r / d p (N, 3);
     zero for points that project outside the target image."""
@@ -442,7 +447,7 @@ def _gauss_newton(p_source: FloatArray, grey_source: FloatArray, p_contour: Floa
         J_weighted = (J * weight[:, None]).T  # once for both products (same bits)
         A = J_weighted @ J
         b = J_weighted @ r
-        if config.photometric_weight > 0 and np.isfinite(target.intensity[0, 0]) and np.isfinite(grey).all():
+        if config.photometric_weight > 0 and _has_grey(target, grey):
             r_c, g = _photometric(p, grey, target)
             w_c = _tukey(r_c, config.grey_tukey) * config.photometric_weight
             J_c = np.hstack([np.cross(p, g), g])
@@ -596,7 +601,7 @@ def surface_agreement(source: DepthView, target: DepthView, T_target_source: Flo
     final = _final_distance(source, target, config)
     p_source, grey = source.points(config.final_stride)
     agrees = _surface_distances(p_source, target, T_target_source, final) < final
-    if grey_tolerance is not None and np.isfinite(target.intensity[0, 0]) and np.isfinite(grey).all():
+    if grey_tolerance is not None and _has_grey(target, grey):
         residual, _ = _photometric(transform_points(T_target_source, p_source), grey, target)
         agrees &= np.abs(residual) < grey_tolerance
     return float(agrees.mean())

@@ -12,7 +12,7 @@ import math
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from functools import cache, partial
+from functools import cache, cached_property, partial
 
 import cv2
 import numpy as np
@@ -269,6 +269,12 @@ class _FrameInput:
     object_mask: BoolArray | None
     _depth_view: tuple[DepthView | None] | None = field(default=None, repr=False)
 
+    @cached_property
+    def noise_sigma(self) -> float:
+        """The image's pixel noise, grey levels (:func:`~funrec.camera.features.image_noise_sigma`), measured once:
+        a keyframe's seeds its corners and weighs the two motions of the frames after it."""
+        return image_noise_sigma(self.gray)
+
     def depth_view(self, K: FloatArray, config: DepthOdometryConfig) -> DepthView | None:
         """The frame's depth view without the hand and the interacted object (they move), built on
         first use and kept: a frame registered by depth is often the next keyframe."""
@@ -335,7 +341,7 @@ def _new_corners(frame: _FrameInput, existing_uv: FloatArray, count: int, config
         mask &= taken == 0
     uv = detect_corners(frame.gray, mask, count, config.corner_quality, config.corner_min_distance_px)
     if config.min_corner_snr > 0 and len(uv):
-        snr = corner_snr(frame.gray, uv, config.klt_window_px, image_noise_sigma(frame.gray))
+        snr = corner_snr(frame.gray, uv, config.klt_window_px, frame.noise_sigma)
         uv = uv[snr >= config.min_corner_snr]
     return uv
 
@@ -606,20 +612,22 @@ def track_camera(capture: Capture, config: TrackingConfig = TrackingConfig(),
         keyframe = _orb_keyframe(len(T_world_node) - 1, frame_index, frame, T_world_node[-1], K, config)
         return uv_all[valid], p_all[valid], keyframe
 
-    def register_by_depth(frame: _FrameInput, keyframe: _FrameInput, T_guess: FloatArray):
-        if not config.depth_odometry.enabled:
-            return None
+    def views(frame: _FrameInput, keyframe: _FrameInput) -> tuple[DepthView, DepthView] | None:
+        """The frame's and the keyframe's depth views, or None where either has none."""
         target = keyframe.depth_view(K, config.depth_odometry)
         source = frame.depth_view(K, config.depth_odometry) if target is not None else None
-        return None if source is None else register_depth(source, target, T_guess, config.depth_odometry)
+        return None if source is None else (source, target)
+
+    def register_by_depth(frame: _FrameInput, keyframe: _FrameInput, T_guess: FloatArray):
+        pair = views(frame, keyframe) if config.depth_odometry.enabled else None
+        return None if pair is None else register_depth(*pair, T_guess, config.depth_odometry)
 
     def agree_in_depth(frame: _FrameInput, keyframe: _FrameInput, T_keyframe_camera: FloatArray) -> float | None:
-        target = keyframe.depth_view(K, config.depth_odometry)
-        source = frame.depth_view(K, config.depth_odometry) if target is not None else None
-        if source is None:
+        pair = views(frame, keyframe)
+        if pair is None:
             return None
-        grey_tolerance = config.second_motion_grey_sigmas * image_noise_sigma(keyframe.gray) / 255.0
-        return surface_agreement(source, target, T_keyframe_camera, config.depth_odometry, grey_tolerance)
+        grey_tolerance = config.second_motion_grey_sigmas * keyframe.noise_sigma / 255.0
+        return surface_agreement(*pair, T_keyframe_camera, config.depth_odometry, grey_tolerance)
 
     frame = _read_frame(capture, 0, config)
     depth_keyframe = frame
