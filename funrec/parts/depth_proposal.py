@@ -215,7 +215,7 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
     if not config.enabled or len(capture) < 3:
         return None
     views = _Views(capture, trajectory, hand, config)
-    p_left = _surface_that_left(views)
+    p_left, first_left = _surface_that_left(views)
     if len(p_left) < config.min_points:
         logger.info("depth proposal: %d points left the first frame's surface (< %d): none", len(p_left), config.min_points)
         return None
@@ -253,10 +253,21 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
     hypotheses = _hypotheses(points, normal, u_axis, v_axis, config.hinge_offsets_m)
 
     fits: dict[tuple[float, ...], DepthFit] = {}  # every scored hypothesis's fit, by _joint_key
+    # Every hypothesis rests at the canonical state until depth first objects after the scene changed, as the chosen
+    # joint's states do, and all but a slide along the front's normal rest until the surface that left starts
+    # leaving, whatever depth says before: a turn or a slide within the front's plane uncovers what lay behind the
+    # front's trailing edge as soon as it moves (seen through), while a drawer pulled towards the camera hides it
+    # (a drawer seen obliquely: 11 of its 22 moving frames before a tenth of its front was seen through). An arm in
+    # front of a plain front flush with its neighbours made every other joint cheaper where it moved the front's
+    # points out from behind the arm onto the neighbours: a slide across the drawer began 0.28 m along at frame 0,
+    # and held only until depth objected, jumped there as the arm came in, 13 frames before any of the front was
+    # seen through (light_dim_pri_drawer_00_r8: that slide 0.210 against the true pull's 0.231, axis 89.9 deg off;
+    # the same rest for the slide alone, a drop-down turn 0.181).
+    coarse_rest, coarse_still = (-(-n // config.score_stride) for n in (rest_frames, first_left))  # scored frames
 
     def score(joint_type: str, axis: FloatArray, pivot: FloatArray | None) -> float:
         fit = depth_fit(coarse, coarse_poses, joint_type, axis, pivot, hypothesis_points, search, coarse_arrival,
-                        hypothesis_normals)
+                        hypothesis_normals, coarse_rest, 0 if _along(joint_type, axis, normal) else coarse_still)
         fits[_joint_key(joint_type, axis, pivot)] = fit
         cost = fit.cost
         if not np.isfinite(cost):
@@ -305,6 +316,11 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
         logger.info("depth proposal: the tracks' %s costs %.3f, the best hypothesis (%s) %.3f: ratio %.2f, %s",
                     rival[0], rival_cost, best[1], best[0], best[0] / rival_cost,
                     "the tracks' joint holds" if rival_held else "depth's joint is clearly better")
+    # A slide whose states run to the end of the search explains no frame there (see _best_type), however well the
+    # tracks agree with it: a plain wardrobe panel's tracks on an arm that pulled it sideways agreed with a slide
+    # straight down, run to 0.9 m (person_elbow_pri_wardrobe_00_r8: 0.201 against the true slide's 0.125, taken by
+    # the agreement; axis 89.7 deg off).
+    slides = [b for b in slides if not reaches_grid_end(fits[_joint_key(*b[1:])], "prismatic", search)]
     if rival is not None and rival[0] == best[1] == "prismatic" and slides:
         best = _slide_agreeing_with_tracks(best, slides, np.asarray(rival[1], dtype=float))
     cost, joint_type, axis, pivot = best
@@ -336,7 +352,8 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
         seen = (frames_seen[inside].astype(np.int64), states_seen[inside] * float(np.asarray(rival[1]) @ axis))
     states = depth_states(capture, trajectory, joint_type, axis, pivot, points, np.zeros(1, np.int64), np.zeros(1),
                           np.ones(1, bool), config.depth, np.broadcast_to(facing, points.shape), arrival=arrival,
-                          seen_states=seen, rest_frames=rest_frames)
+                          seen_states=seen, rest_frames=rest_frames,
+                          still_frames=0 if _along(joint_type, axis, normal) else first_left)
     states = states - states[0]
     if states[np.argmax(np.abs(states))] < 0:
         axis, states = -axis, -states
@@ -462,13 +479,23 @@ class _Views:
         return out
 
 
-def _surface_that_left(views: _Views) -> FloatArray:
-    """(M, 3) world points of frame 0's surface that at least ``min_frames`` later frames see through."""
+def _along(joint_type: str, axis: FloatArray, normal: FloatArray) -> bool:
+    """Whether a joint is a slide along the front's normal (within 60 deg of it)."""
+    return joint_type == "prismatic" and abs(float(np.dot(axis, normal))) >= 0.5
+
+
+def _surface_that_left(views: _Views) -> tuple[FloatArray, int]:
+    """(M, 3) world points of frame 0's surface that at least ``min_frames`` later frames see through, and the
+    first frame in which it was leaving: in which at least ``min_points`` of them (or a tenth of the most that any
+    frame sees through, for a small part) are seen through. Before it, nothing had left: the part had not moved.
+    Measured: 0-4 of 276 points seen through per frame before a plain drawer moved, 52 then 126 as it did
+    (light_dim_pri_drawer_00_r8); 0, then 101 of 9052 (person_elbow_pri_wardrobe_00_r8)."""
     p_world = views.points(0)
-    left = np.zeros(len(p_world), dtype=np.int64)
-    for frame in range(1, len(views.capture)):
-        left += views.seen_through(p_world, frame)
-    return p_world[left >= views.config.min_frames]
+    through = np.stack([views.seen_through(p_world, frame) for frame in range(1, len(views.capture))])  # (F - 1, N)
+    left = through.sum(axis=0) >= views.config.min_frames
+    per_frame = through[:, left].sum(axis=1)
+    leaving = np.flatnonzero(per_frame >= min(views.config.min_points, 0.1 * per_frame.max(initial=0)))
+    return p_world[left], 1 + int(leaving[0]) if len(leaving) else len(views.capture)
 
 
 def _arrived(views: _Views, frames: IntArray) -> tuple[FloatArray, ...]:

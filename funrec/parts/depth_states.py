@@ -164,6 +164,7 @@ def depth_states(
     arrival: Arrival | None = None,
     seen_states: tuple[IntArray, FloatArray] | None = None,
     rest_frames: int | None = None,
+    still_frames: int = 0,
 ) -> FloatArray:
     """Joint state of every frame of the capture from its depth, consistent with the tracked states.
 
@@ -197,12 +198,16 @@ def depth_states(
             above the frame's best); those frames hold the search there as a trusted tracked state would,
             where their depth does not object. Frames before ``rest_frames`` (before the scene changed) may
             object without ending the rest. None: no rest is assumed.
+        still_frames: frames before this one hold the canonical state whatever their depth says: no later
+            surface had yet been seen through the part's (see :func:`~funrec.parts.depth_proposal.propose_part`),
+            so it had not moved, and a cheaper state there is something else (an arm in front of a plain front
+            flush with its neighbours, which a slide within the front's plane moves the points out from behind).
 
     Returns:
         (F,) state of every capture frame (rad or m), same canonical state as ``tracked_states``.
     """
     return _search(capture, trajectory, joint_type, axis_world, pivot_world, p_world, tracked_frames, tracked_states,
-                   trusted, config, normal_world, arrival, seen_states, rest_frames).states
+                   trusted, config, normal_world, arrival, seen_states, rest_frames, still_frames).states
 
 
 def depth_fit(
@@ -215,6 +220,8 @@ def depth_fit(
     config: DepthStateConfig = DepthStateConfig(),  # noqa: B008 (frozen, immutable default)
     arrival: Arrival | None = None,
     normal_world: FloatArray | None = None,
+    rest_frames: int | None = None,
+    still_frames: int = 0,
 ) -> DepthFit:
     """How well a joint hypothesis explains the depth of a capture, from depth alone.
 
@@ -225,7 +232,8 @@ def depth_fit(
 
     Args: as :func:`depth_states` (``p_world`` (M, 3) canonical part points, world frame; the mean
         cost includes the ``arrival`` term where given; ``normal_world`` scores points that face
-        away from the camera as a panel's far face).
+        away from the camera as a panel's far face; ``rest_frames`` and ``still_frames`` hold the part at
+        rest).
 
     Returns:
         The fit: (F,) state of every frame, the mean cost in [0, 1] (NaN when no frame sees
@@ -233,14 +241,15 @@ def depth_fit(
     """
     none = np.zeros(0, np.int64)
     return _search(capture, trajectory, joint_type, axis_world, pivot_world, p_world, none, np.zeros(0),
-                   np.zeros(0, bool), config, normal_world, arrival)
+                   np.zeros(0, bool), config, normal_world, arrival, rest_frames=rest_frames,
+                   still_frames=still_frames)
 
 
 def _search(capture: Capture, trajectory: CameraTrajectory, joint_type: str, axis_world: FloatArray,
             pivot_world: FloatArray | None, p_world: FloatArray, tracked_frames: IntArray, tracked_states: FloatArray,
             trusted: BoolArray, config: DepthStateConfig, normal_world: FloatArray | None,
             arrival: Arrival | None = None, seen_states: tuple[IntArray, FloatArray] | None = None,
-            rest_frames: int | None = None) -> DepthFit:
+            rest_frames: int | None = None, still_frames: int = 0) -> DepthFit:
     """The states of :func:`depth_states` and the depth cost of the chain (mean over the frames that see the part)."""
     F = len(capture)
     revolute = joint_type == "revolute"
@@ -287,13 +296,14 @@ def _search(capture: Capture, trajectory: CameraTrajectory, joint_type: str, axi
         _hold(cost, grid, frames[agree], seen[agree], sigma)
         logger.info("depth states: %d of %d states seen by another cue held (depth objects to the rest)",
                     int(agree.sum()), len(frames))
-    if rest_frames is not None:
+    if rest_frames is not None or still_frames > 0:
         # A panel sliding in its own plane looks the same in depth wherever it stands but at its edges: at rest its
         # depth cost is flat in the state, and an arm in front of it (its points hidden there cost occluded_cost)
         # makes the states that slide them out from behind it slightly cheaper, frame after frame, so that the chain
         # read the panel's travel long before it moved (dark_pri_wardrobe_00, no tracks on a dark panel: 10.4 cm
         # over the 44 frames before it moved). Until depth first objects to the canonical state, the part rests.
-        rest = _rest_prefix(depth_only, seeing, int(np.argmin(np.abs(grid))), rest_frames, config.change_cost)
+        rest = _rest_prefix(depth_only, seeing, int(np.argmin(np.abs(grid))), rest_frames or 0, config.change_cost,
+                            still_frames)
         _hold(cost, grid, rest, np.zeros(len(rest)), sigma)
         logger.info("depth states: the part rests at its canonical state in %d of the first %d frames",
                     len(rest), int(rest.max()) + 1 if len(rest) else 0)
@@ -321,14 +331,16 @@ def reaches_grid_end(fit: DepthFit, joint_type: str, config: DepthStateConfig) -
     return bool(np.abs(fit.states).max(initial=0.0) >= grid[-1] - 0.5 * step)
 
 
-def _rest_prefix(depth_only: FloatArray, seeing: BoolArray, canonical: int, rest_frames: int, change_cost: float
-                 ) -> IntArray:
-    """Frames (from 1) of the rest at the canonical grid state (see :func:`depth_states`' ``rest_frames``): those
-    before the first frame at or after ``rest_frames`` whose depth objects to it, less the frames that object."""
+def _rest_prefix(depth_only: FloatArray, seeing: BoolArray, canonical: int, rest_frames: int, change_cost: float,
+                 still_frames: int = 0) -> IntArray:
+    """Frames (from 1) of the rest at the canonical grid state (see :func:`depth_states`' ``rest_frames`` and
+    ``still_frames``): those before the first frame at or after ``max(rest_frames, still_frames)`` whose depth
+    objects to it, less the frames from ``still_frames`` on that object."""
     objects = seeing & _depth_objects(depth_only, np.full(len(depth_only), canonical), change_cost)
-    objects[0] = False
-    later = np.flatnonzero(objects[max(rest_frames, 1):])
-    end = max(rest_frames, 1) + int(later[0]) if len(later) else len(objects)
+    objects[: max(still_frames, 1)] = False
+    start = max(rest_frames, still_frames, 1)
+    later = np.flatnonzero(objects[start:])
+    end = start + int(later[0]) if len(later) else len(objects)
     frames = np.arange(1, end)
     return frames[~objects[frames]]
 
