@@ -389,6 +389,10 @@ def test_rest_holds_until_depth_first_objects_after_the_still_frames() -> None:
     np.testing.assert_array_equal(_rest_prefix(cost, seeing, 1, 0, 0.02), [1])  # 2 ends it
     seeing[5] = False
     np.testing.assert_array_equal(_rest_prefix(cost, seeing, 1, 4, 0.02), [1, 3, 4, 5, 6, 7])
+    # still_frames: frames before it are held whatever their depth says (2 objects and is held), and the rest
+    # goes on after it until depth objects
+    seeing[5] = True
+    np.testing.assert_array_equal(_rest_prefix(cost, seeing, 1, 0, 0.02, still_frames=3), [1, 2, 3, 4])
 
 
 def test_a_drawer_front_normal_is_refitted_on_the_closed_front_around_a_thin_strip() -> None:
@@ -432,8 +436,13 @@ def test_a_drawer_front_normal_is_refitted_on_the_closed_front_around_a_thin_str
 def test_the_tracks_slide_agreeing_with_a_depth_slide_stands_unless_the_other_is_twice_as_good() -> None:
     """geo_island_pri_drawer_00's costs: in-plane 0.139, along the normal 0.165, the tracks' slide
     1 deg from the normal: the normal stands; at 0.08 (over 2x better) the in-plane slide wins; a
-    tracks' slide 30 deg from every hypothesis agrees with none."""
-    from funrec.parts.depth_proposal import _slide_agreeing_with_tracks
+    tracks' slide 30 deg from every hypothesis agrees with none (no slide reaches the search's end)."""
+    from funrec.parts.depth_proposal import _slide_agreeing_with_tracks as agreeing_with
+
+    fits = _fits_within(0.2)
+
+    def _slide_agreeing_with_tracks(best, slides, rival_axis):  # noqa: ANN001, ANN202 (the rule under test)
+        return agreeing_with(best, slides, rival_axis, fits, SEARCH)
 
     normal, in_plane = np.array([0.0, 0.57, -0.82]), np.array([0.0, -0.82, -0.57])
     normal /= np.linalg.norm(normal)
@@ -447,6 +456,72 @@ def test_the_tracks_slide_agreeing_with_a_depth_slide_stands_unless_the_other_is
     c, s = np.cos(np.deg2rad(30)), np.sin(np.deg2rad(30))
     off = c * normal + s * np.array([1.0, 0.0, 0.0])
     assert _slide_agreeing_with_tracks(within, [along, within], off) is within
+
+
+SEARCH = DepthStateConfig(prismatic_step_m=0.015)
+"""A coarse search like the proposal's (its grid ends at 0.9 m)."""
+
+
+def _fits_within(largest_m: float, ends: tuple[np.ndarray, ...] = ()) -> dict:
+    """Fits by joint key whose states reach ``largest_m``, or the grid's end for the slides along ``ends``."""
+    from collections import defaultdict
+
+    from funrec.parts.depth_proposal import _joint_key
+    from funrec.parts.depth_states import DepthFit, _state_grid
+
+    def fit(largest: float) -> DepthFit:
+        return DepthFit(np.linspace(0.0, largest, 10), 0.1, np.zeros(10))
+
+    fits = defaultdict(lambda: fit(largest_m))
+    fits.update({_joint_key("prismatic", axis, None): fit(_state_grid("prismatic", SEARCH)[0][-1]) for axis in ends})
+    return fits
+
+
+def test_a_slide_the_tracks_agree_with_does_not_stand_when_it_runs_to_the_end_of_the_search() -> None:
+    """person_elbow_pri_wardrobe_00_r8's costs: the panel's true sideways slide 0.125, a slide straight down
+    0.201 whose states ran to the grid's 0.9 m end, the tracks (on the arm) 4 deg from it: the agreement rule
+    took the slide down (0.125 is not half of 0.201). A slide that reaches the end of the search explains no
+    frame there: the true slide stands; the same slide within the search (0.6 m) still stands by agreement."""
+    from funrec.parts.depth_proposal import _slide_agreeing_with_tracks
+
+    sideways, down = np.array([-0.998, 0.041, -0.049]), np.array([0.022, 0.939, 0.342])
+    tracks = np.array([0.094, 0.932, 0.349])
+    true, agreed = (0.125, "prismatic", sideways, None), (0.201, "prismatic", down, None)
+    assert _slide_agreeing_with_tracks(true, [true, agreed], tracks, _fits_within(0.56, (down,)), SEARCH) is true
+    assert _slide_agreeing_with_tracks(true, [true, agreed], tracks, _fits_within(0.6), SEARCH) is agreed
+
+
+def test_a_resting_front_is_held_while_an_arm_hides_it_until_its_surface_leaves() -> None:
+    """A patch of a plain wall (a front flush with its neighbours) that an arm hides in frames 3-11 before it
+    slides in its plane from frame 12: unheld, the chain moves the hidden points out from behind the arm onto
+    the wall beside it (matched, cost 0, against ``occluded_cost`` behind the arm) before the patch moved
+    (light_dim_pri_drawer_00_r8: 0.28 m). Held until frame 12 (``still_frames``, where its surface starts
+    leaving), it rests within one grid step, whatever depth says there; ``rest_frames`` alone lets the
+    objecting frames go."""
+    from funrec.parts.depth_states import depth_fit
+
+    F, W, H = 20, 160, 120
+    v, u = np.mgrid[0:H, 0:W]
+    true = np.clip((np.arange(F) - 11) * 0.05, 0.0, 0.25)  # metres along +x from frame 12 (0.3: out of the opening)
+    depth = []
+    for f in range(F):
+        x = (u - K[0, 2]) / K[0, 0] * 1.5
+        y = (v - K[1, 2]) / K[1, 1] * 1.5
+        image = np.where((np.abs(x + 0.1 - true[f]) <= 0.15) & (np.abs(y) <= 0.1) | (np.abs(x + 0.1) > 0.15)
+                         | (np.abs(y) > 0.1), 1.5, 1.9)  # the patch's opening is 0.4 m deep where it left
+        if 3 <= f < 12:
+            image = np.where((u >= 60) & (u < 100), 1.0, image)  # the arm
+        depth.append(image)
+    capture = _fake_capture(depth)
+    trajectory = SimpleNamespace(T_world_camera=np.tile(np.eye(4), (F, 1, 1)))
+    gx, gy = np.meshgrid(np.linspace(-0.24, 0.04, 12), np.linspace(-0.09, 0.09, 6))
+    p_world = np.stack([gx.ravel(), gy.ravel(), np.full(gx.size, 1.5)], -1)
+    axis = np.array([1.0, 0.0, 0.0])
+    unheld = depth_fit(capture, trajectory, "prismatic", axis, None, p_world, SEARCH, rest_frames=3)
+    assert np.abs(unheld.states[3:12]).max() > 0.1, unheld.states.round(3)
+    held = depth_fit(capture, trajectory, "prismatic", axis, None, p_world, SEARCH, rest_frames=3, still_frames=12)
+    assert np.abs(held.states[:12]).max() <= SEARCH.prismatic_step_m, held.states.round(3)
+    assert abs(held.states[-1] - true[-1]) < 0.03, held.states.round(3)  # the depth tolerance
 
 
 def test_tracks_that_saw_the_whole_pull_refute_a_turn_and_early_tracks_do_not() -> None:

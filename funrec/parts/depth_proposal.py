@@ -316,13 +316,8 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
         logger.info("depth proposal: the tracks' %s costs %.3f, the best hypothesis (%s) %.3f: ratio %.2f, %s",
                     rival[0], rival_cost, best[1], best[0], best[0] / rival_cost,
                     "the tracks' joint holds" if rival_held else "depth's joint is clearly better")
-    # A slide whose states run to the end of the search explains no frame there (see _best_type), however well the
-    # tracks agree with it: a plain wardrobe panel's tracks on an arm that pulled it sideways agreed with a slide
-    # straight down, run to 0.9 m (person_elbow_pri_wardrobe_00_r8: 0.201 against the true slide's 0.125, taken by
-    # the agreement; axis 89.7 deg off).
-    slides = [b for b in slides if not reaches_grid_end(fits[_joint_key(*b[1:])], "prismatic", search)]
     if rival is not None and rival[0] == best[1] == "prismatic" and slides:
-        best = _slide_agreeing_with_tracks(best, slides, np.asarray(rival[1], dtype=float))
+        best = _slide_agreeing_with_tracks(best, slides, np.asarray(rival[1], dtype=float), fits, search)
     cost, joint_type, axis, pivot = best
     if rival is not None and rival_held and rival[0] == joint_type == "revolute":
         # a door's tracks lie on its leaf: depth agrees on the type and the tracks' hinge explains the surface as
@@ -664,13 +659,22 @@ def _best_type(best_of: dict[str, tuple], fits: dict[tuple[float, ...], DepthFit
     return candidates[int(np.argmin(scores))]
 
 
-def _slide_agreeing_with_tracks(best: tuple, slides: list[tuple], rival_axis: FloatArray) -> tuple:
+def _slide_agreeing_with_tracks(best: tuple, slides: list[tuple], rival_axis: FloatArray,
+                                fits: dict[tuple[float, ...], DepthFit], search: DepthStateConfig) -> tuple:
     """The tracks' slide agreeing with one of depth's slide hypotheses (``slides``: (cost, type,
-    axis, pivot)) is two cues against one: that hypothesis stands unless ``best`` explains the
-    surface twice as well. A drawer pulled towards a camera above it leaves little surface that a
-    later frame sees through (strips along the gaps between fronts), where a slide within the
-    front's plane scored 0.139 against 0.165 along its normal, the tracks' slide 1 deg from that
-    normal (geo_island_pri_drawer_00: axis 90 deg off before)."""
+    axis, pivot), their ``fits`` by :func:`_joint_key` from the ``search``) is two cues against one:
+    that hypothesis stands unless ``best`` explains the surface twice as well. A drawer pulled towards
+    a camera above it leaves little surface that a later frame sees through (strips along the gaps
+    between fronts), where a slide within the front's plane scored 0.139 against 0.165 along its
+    normal, the tracks' slide 1 deg from that normal (geo_island_pri_drawer_00: axis 90 deg off before).
+
+    A slide whose states run to the end of the search explains no frame there (see :func:`_best_type`)
+    however well the tracks agree with it: a plain wardrobe panel's tracks, on the arm that pulled it
+    sideways, agreed with a slide straight down run to 0.9 m, which the agreement took over the true
+    slide (person_elbow_pri_wardrobe_00_r8: 0.201 against 0.125; axis 89.7 deg off)."""
+    slides = [b for b in slides if not reaches_grid_end(fits[_joint_key(*b[1:])], "prismatic", search)]
+    if not slides:
+        return best
     agreeing = max(slides, key=lambda b: abs(float(np.dot(b[2], rival_axis))))
     agrees = abs(float(np.dot(agreeing[2], rival_axis))) > np.cos(np.deg2rad(SLIDE_AGREEMENT_DEG))
     return agreeing if agrees and not best[0] < SLIDE_OVERRIDE_RATIO * agreeing[0] else best
