@@ -524,6 +524,16 @@ def test_a_resting_front_is_held_while_an_arm_hides_it_until_its_surface_leaves(
     assert abs(held.states[-1] - true[-1]) < 0.03, held.states.round(3)  # the depth tolerance
 
 
+def test_the_scene_changes_where_a_part_makes_as_much_change_as_a_part() -> None:
+    """_first_frame_over: light_dim_pri_drawer_00_r8's counts of the surface that left (a one-frame flicker of 23
+    and 0-4 before the drawer moved, then 52 and 126) change at the 52; a small part's at a tenth of its largest."""
+    from funrec.parts.depth_proposal import _first_frame_over
+
+    assert _first_frame_over(np.array([0, 0, 3, 23, 4, 0, 52, 126, 240]), 40) == 6
+    assert _first_frame_over(np.array([0, 1, 2, 6, 8, 20]), 40) == 2  # a tenth of 20
+    assert _first_frame_over(np.zeros(5, np.int64), 40) == 5
+
+
 def test_tracks_that_saw_the_whole_pull_refute_a_turn_and_early_tracks_do_not() -> None:
     """Depth's replacement of the tracks' part is refused where that part's tracks saw most of depth's
     motion and depth's joint carries them decimetres from where they were seen (a drawer's textured

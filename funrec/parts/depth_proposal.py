@@ -215,7 +215,7 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
     if not config.enabled or len(capture) < 3:
         return None
     views = _Views(capture, trajectory, hand, config)
-    p_left, first_left = _surface_that_left(views)
+    p_left, leaving = _surface_that_left(views)
     if len(p_left) < config.min_points:
         logger.info("depth proposal: %d points left the first frame's surface (< %d): none", len(p_left), config.min_points)
         return None
@@ -241,7 +241,8 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
     hypothesis_normals = np.broadcast_to(facing, hypothesis_points.shape)
     # what arrived in front of frame 0's view, in every scored frame: the moved part must be it
     F = len(capture)
-    arrived = _arrived(views, np.arange(F))  # once: the scored frames' for the hypotheses, all for the chosen joint
+    arrived, arriving = _arrived(views, np.arange(F))  # once: the scored frames' for the hypotheses, all for the chosen joint
+    first_change = min(_first_frame_over(leaving, config.min_points), _first_frame_over(arriving, config.min_points))
     scored = np.arange(0, F, config.score_stride)
     coarse_arrival = Arrival(np.arange(len(scored)), arrived[:: config.score_stride], views.depth0_m,
                              capture.intrinsics.K, invert_transform(trajectory.T_world_camera[0]))
@@ -253,21 +254,22 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
     hypotheses = _hypotheses(points, normal, u_axis, v_axis, config.hinge_offsets_m)
 
     fits: dict[tuple[float, ...], DepthFit] = {}  # every scored hypothesis's fit, by _joint_key
-    # Every hypothesis rests at the canonical state until depth first objects after the scene changed, as the chosen
-    # joint's states do, and all but a slide along the front's normal rest until the surface that left starts
-    # leaving, whatever depth says before: a turn or a slide within the front's plane uncovers what lay behind the
-    # front's trailing edge as soon as it moves (seen through), while a drawer pulled towards the camera hides it
-    # (a drawer seen obliquely: 11 of its 22 moving frames before a tenth of its front was seen through). An arm in
-    # front of a plain front flush with its neighbours made every other joint cheaper where it moved the front's
-    # points out from behind the arm onto the neighbours: a slide across the drawer began 0.28 m along at frame 0,
-    # and held only until depth objected, jumped there as the arm came in, 13 frames before any of the front was
-    # seen through (light_dim_pri_drawer_00_r8: that slide 0.210 against the true pull's 0.231, axis 89.9 deg off;
-    # the same rest for the slide alone, a drop-down turn 0.181).
-    coarse_rest, coarse_still = (-(-n // config.score_stride) for n in (rest_frames, first_left))  # scored frames
+    # Every hypothesis is scored resting at the canonical state until the scene changes by as much as a part makes
+    # (surface seen through or arrived in front, hands left out: _first_frame_over), whatever depth says before, and
+    # after it until depth first objects, as the chosen joint's states do. An arm in front of a plain front flush with its neighbours
+    # made a joint cheaper where it moved the front's points out from behind the arm onto the neighbours: unheld, a
+    # slide across a drawer began 0.28 m along at frame 0, and held only until depth objected, it jumped there as the
+    # arm came in, 13 frames before any of the front was seen through (light_dim_pri_drawer_00_r8: that slide 0.210
+    # against the true pull's 0.231, axis 89.9 deg off; held only until the first surface left, a drop-down turn of
+    # the front cost 0.181 and a door turning towards the camera, which hid what lay behind it before anything
+    # behind was seen, was held to 20 deg: person_slow_rev_cabinet_00_r8 read as a slide). That change is seen once
+    # the surface has moved by the free-space margin (7.5 cm at 1.5 m), so the chosen joint's states are not held
+    # to it: they rest until depth objects, as before.
+    coarse_rest, coarse_still = (-(-n // config.score_stride) for n in (rest_frames, first_change))  # scored frames
 
     def score(joint_type: str, axis: FloatArray, pivot: FloatArray | None) -> float:
         fit = depth_fit(coarse, coarse_poses, joint_type, axis, pivot, hypothesis_points, search, coarse_arrival,
-                        hypothesis_normals, coarse_rest, 0 if _along(joint_type, axis, normal) else coarse_still)
+                        hypothesis_normals, coarse_rest, coarse_still)
         fits[_joint_key(joint_type, axis, pivot)] = fit
         cost = fit.cost
         if not np.isfinite(cost):
@@ -347,8 +349,7 @@ def propose_part(capture: Capture, trajectory: CameraTrajectory, hand: HandMask 
         seen = (frames_seen[inside].astype(np.int64), states_seen[inside] * float(np.asarray(rival[1]) @ axis))
     states = depth_states(capture, trajectory, joint_type, axis, pivot, points, np.zeros(1, np.int64), np.zeros(1),
                           np.ones(1, bool), config.depth, np.broadcast_to(facing, points.shape), arrival=arrival,
-                          seen_states=seen, rest_frames=rest_frames,
-                          still_frames=0 if _along(joint_type, axis, normal) else first_left)
+                          seen_states=seen, rest_frames=rest_frames)
     states = states - states[0]
     if states[np.argmax(np.abs(states))] < 0:
         axis, states = -axis, -states
@@ -474,35 +475,40 @@ class _Views:
         return out
 
 
-def _along(joint_type: str, axis: FloatArray, normal: FloatArray) -> bool:
-    """Whether a joint is a slide along the front's normal (within 60 deg of it)."""
-    return joint_type == "prismatic" and abs(float(np.dot(axis, normal))) >= 0.5
-
-
-def _surface_that_left(views: _Views) -> tuple[FloatArray, int]:
-    """(M, 3) world points of frame 0's surface that at least ``min_frames`` later frames see through, and the
-    first frame in which it was leaving: in which at least ``min_points`` of them (or a tenth of the most that any
-    frame sees through, for a small part) are seen through. Before it, nothing had left: the part had not moved.
-    Measured: 0-4 of 276 points seen through per frame before a plain drawer moved, 52 then 126 as it did
-    (light_dim_pri_drawer_00_r8); 0, then 101 of 9052 (person_elbow_pri_wardrobe_00_r8)."""
+def _surface_that_left(views: _Views) -> tuple[FloatArray, IntArray]:
+    """(M, 3) world points of frame 0's surface that at least ``min_frames`` later frames see through, and (F,)
+    how many of them each frame sees through (0 in frame 0)."""
     p_world = views.points(0)
     through = np.stack([views.seen_through(p_world, frame) for frame in range(1, len(views.capture))])  # (F - 1, N)
     left = through.sum(axis=0) >= views.config.min_frames
-    per_frame = through[:, left].sum(axis=1)
-    leaving = np.flatnonzero(per_frame >= min(views.config.min_points, 0.1 * per_frame.max(initial=0)))
-    return p_world[left], 1 + int(leaving[0]) if len(leaving) else len(views.capture)
+    return p_world[left], np.concatenate([[0], through[:, left].sum(axis=1)])
 
 
-def _arrived(views: _Views, frames: IntArray) -> tuple[FloatArray, ...]:
+def _arrived(views: _Views, frames: IntArray) -> tuple[tuple[FloatArray, ...], IntArray]:
     """(N, 3) world points, per frame, of surfaces in front of what frame 0 saw (frame 0 sees
-    through them), at most ``arrival_points`` (evenly subsampled)."""
-    out = []
+    through them), at most ``arrival_points`` (evenly subsampled), and how many there were in each frame."""
+    out, counts = [], []
     for frame in frames:
         p_world = views.points(int(frame))
         p_world = p_world[views.seen_through(p_world, 0)]
+        counts.append(len(p_world))
         n = views.config.arrival_points
         out.append(p_world[np.linspace(0, len(p_world) - 1, n).astype(int)] if len(p_world) > n else p_world)
-    return tuple(out)
+    return tuple(out), np.asarray(counts, dtype=np.int64)
+
+
+def _first_frame_over(counts: IntArray, min_points: int) -> int:
+    """The first frame whose count reaches ``min_points`` (or a tenth of the largest count, for a small part);
+    ``len(counts)`` if none does.
+
+    With the counts of the surface that left, or that arrived in front of frame 0's view (hands left out), it is
+    the first frame in which the scene changed by as much as a part makes: before it the part had not moved.
+    Measured, surface that left / arrived per frame before a part moved: 0-4 / 0-23 (one frame) of a plain drawer
+    (light_dim_pri_drawer_00_r8, then 52 and 126 left as it moved), 0 / 0-9 of a door (person_slow_rev_cabinet_00_r8,
+    whose door, turning towards the camera, hid what lay behind it: 29 then 139 arrived at 8 and 10 deg, while 3,
+    16, 36, 68 left only at 12-20 deg), 0 / 0 of a sliding panel (person_elbow_pri_wardrobe_00_r8, then 101 left)."""
+    over = np.flatnonzero(counts >= max(1.0, min(min_points, 0.1 * counts.max(initial=0))))
+    return int(over[0]) if len(over) else len(counts)
 
 
 def _front_plane(p: FloatArray, tolerance_m: float, iterations: int = 200

@@ -198,9 +198,9 @@ def depth_states(
             above the frame's best); those frames hold the search there as a trusted tracked state would,
             where their depth does not object. Frames before ``rest_frames`` (before the scene changed) may
             object without ending the rest. None: no rest is assumed.
-        still_frames: frames before this one hold the canonical state whatever their depth says: no later
-            surface had yet been seen through the part's (see :func:`~funrec.parts.depth_proposal.propose_part`),
-            so it had not moved, and a cheaper state there is something else (an arm in front of a plain front
+        still_frames: frames before this one hold the canonical state whatever their depth says: the scene had not
+            yet changed by as much as a part makes (see :func:`~funrec.parts.depth_proposal.propose_part`), so the
+            part had not moved, and a cheaper state there is something else (an arm in front of a plain front
             flush with its neighbours, which a slide within the front's plane moves the points out from behind).
 
     Returns:
