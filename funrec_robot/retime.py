@@ -161,8 +161,7 @@ def retime_path(
         waypoints: (N, n) joint positions, N >= 2.
         v_max, a_max: (n,) limits.
 
-    Raises:
-        PlanningError: toppra finds no parametrisation.
+    Where toppra finds no parametrisation (see below), the path is driven rest to rest between its waypoints.
     """
     # toppra imports matplotlib.pyplot at import time (about a second): only when a path is timed.
     import toppra
@@ -213,7 +212,12 @@ def retime_path(
         if len(kept) < len(waypoints):
             return retime_path(kept, v_max, a_max, config)
     if timed is None:
-        raise PlanningError(f"toppra: no time parametrisation of a {len(waypoints)}-waypoint path under the limits")
+        # Still none: a corner where every joint's PCHIP slope is zero (one joint done, the next starting, the first
+        # having moved microradians: found by the property test) is a cusp without a controllable set. The path is
+        # driven waypoint to waypoint, each a rest-to-rest motion timed by ruckig state to state: slower, never
+        # outside the limits.
+        log.debug("toppra: no parametrisation of a %d-waypoint path; rest-to-rest between its waypoints", len(waypoints))
+        return _joined([point_to_point(a, b, v_max, a_max, config) for a, b in zip(waypoints[:-1], waypoints[1:])])
     duration = float(timed.duration)
     t_dense = np.linspace(0.0, duration, max(3, int(np.ceil(duration / config.check_dt)) + 1))
     use = limit_use(t_dense, _sample(timed, t_dense, 1), v_max, a_max)
@@ -227,6 +231,16 @@ def retime_path(
     qd = _sample(timed, tau, 1) / scale
     q[-1], qd[-1] = waypoints[-1], 0.0
     return Trajectory(t, q, qd)
+
+
+def _joined(parts: list[Trajectory]) -> Trajectory:
+    """Rest-to-rest trajectories one after the other (each starts where the last ended, sampled at the same period)."""
+    t, q, qd = [parts[0].t], [parts[0].q], [parts[0].qd]
+    for part in parts[1:]:
+        t.append(t[-1][-1] + part.t[1:])
+        q.append(part.q[1:])
+        qd.append(part.qd[1:])
+    return Trajectory(np.concatenate(t), np.concatenate(q), np.concatenate(qd))
 
 
 def point_to_point(

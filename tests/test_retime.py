@@ -8,7 +8,7 @@ import pytest
 import toppra
 import toppra.algorithm
 import toppra.constraint
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
@@ -74,6 +74,8 @@ def test_const_accel_also_overshoots_so_retime_slows_it_down(gridpoints: int) ->
     steps=arrays(np.float64, (6, 3), elements=st.floats(-0.5, 0.5)),
     scale=st.floats(0.2, 3.0),
 )
+@example(steps=np.vstack([[0.5, 2.6e-6, 2.6e-6], [2.6e-6, -0.5, 2.6e-6], np.full((4, 3), 2.6e-6)]), scale=1.0)  # toppra:
+# "not controllable" on the micrometre pieces (found by this test in a full run)
 def test_retimed_paths_stay_within_limits_and_end_at_rest(steps: np.ndarray, scale: float) -> None:
     waypoints = np.cumsum(np.vstack([np.zeros(3), steps]), axis=0)
     if np.max(np.abs(np.diff(waypoints, axis=0))) < 1e-3:
