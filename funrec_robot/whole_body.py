@@ -199,7 +199,7 @@ def whole_body_configurations(
     # rev_oven_00_r3's door at the stop in the plan, lay 12 mm inside it in the check and the release met 107 N.
     # There both ways round are tried, and the one lying shallower in the scene (the part's front) kept; if both
     # lie in it, the caller tries its other base stops and grasps first (``DeepInPart``).
-    loaded = _weight_on_hand(model, joint, task, float(states[-1])) > config.fall_rest_force
+    loaded = _presses_on_hand(robot, model, joint, task, float(states[-1]), config)
     kept: tuple[float, dict] | None = None
     for rank, (_, flip, path, q_pre, e_pos, e_rot) in enumerate(scored):
         if rank > 0 and (e_pos > config.track_position_tolerance or e_rot > config.track_orientation_tolerance):
@@ -243,6 +243,13 @@ def _attempt(args: tuple, straightened: list[bool] | None, errors: list[Planning
     except PlanningError as exc:
         errors.append(exc)
         return None
+
+
+def _presses_on_hand(robot: RobotDescription, model: mujoco.MjModel, joint: int, task: ArticulationTask, state: float,
+                     config: PlanConfig) -> bool:
+    """Whether holding the part still at ``state`` takes more than the robot's rest force on a finger
+    (``gripper.fall_rest_force``, else the planner's): the same bound the planner lets a falling part go by."""
+    return _weight_on_hand(model, joint, task, state) > robot.gripper.rest_force(config.fall_rest_force)
 
 
 def _weight_on_hand(model: mujoco.MjModel, joint: int, task: ArticulationTask, state: float) -> float:
