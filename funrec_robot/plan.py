@@ -481,8 +481,7 @@ def _held_prefix(robot: RobotDescription, model: mujoco.MjModel, joint: int, tas
     if task.joint_type != "revolute" or task.pivot_world is None:
         return 0
     force = holding_force(model, joint, states, task.p_world_contact, task.axis_world, task.pivot_world)
-    rest = config.fall_rest_force if robot.gripper.fall_rest_force is None else robot.gripper.fall_rest_force
-    limit = min(rest, hand_capacity(robot, model, config.gravity_effort_share))
+    limit = min(robot.gripper.rest_force(config.fall_rest_force), hand_capacity(robot, model, config.gravity_effort_share))
     light = np.linalg.norm(force, axis=1) <= limit
     if geometry.lift_range is not None:
         lift = len(robot.base_joints)

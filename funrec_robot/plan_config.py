@@ -55,6 +55,9 @@ class PlanConfig:
     """When the direct approach collides, the gripper first goes to this far out along the approach, m."""
     via_position_tolerance: float = 0.03
     """Largest IK residual accepted at the approach's via pose (free space), m."""
+    approach_line_step: float = 0.1
+    """Where the joint moves to the via pose collide, the hand goes to it along a straight line through IK poses this
+    far apart, m (a joint move between poses 0.1 m apart keeps the hand within a few centimetres of the line)."""
     retreat_step: float = 0.01
     """The retreat is solved in steps of this length along the approach, stopping where the IK cannot follow, m."""
     release_sweep_samples: int = 8

@@ -112,6 +112,11 @@ class GripperDescription:
     """Speed of the retreat from such a part, as a fraction of the usual (``gripper.fall_retreat_scale``); None: the
     planner's ``PlanConfig.falling_retreat_scale``."""
 
+    def rest_force(self, planner_default: float) -> float:
+        """Most weight a part may rest on a finger with, N: ``fall_rest_force``, else ``planner_default`` (the
+        planner's ``PlanConfig.fall_rest_force``)."""
+        return planner_default if self.fall_rest_force is None else self.fall_rest_force
+
     def command(self, half_width: float) -> float:
         """The command that leaves ``half_width`` between the grasp centre and each jaw (linear between closed
         and open; not clipped)."""

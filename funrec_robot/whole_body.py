@@ -199,7 +199,7 @@ def whole_body_configurations(
     # rev_oven_00_r3's door at the stop in the plan, lay 12 mm inside it in the check and the release met 107 N.
     # There both ways round are tried, and the one lying shallower in the scene (the part's front) kept; if both
     # lie in it, the caller tries its other base stops and grasps first (``DeepInPart``).
-    loaded = _weight_on_hand(model, joint, task, float(states[-1])) > config.fall_rest_force
+    loaded = _presses_on_hand(robot, model, joint, task, float(states[-1]), config)
     kept: tuple[float, dict] | None = None
     for rank, (_, flip, path, q_pre, e_pos, e_rot) in enumerate(scored):
         if rank > 0 and (e_pos > config.track_position_tolerance or e_rot > config.track_orientation_tolerance):
@@ -243,6 +243,13 @@ def _attempt(args: tuple, straightened: list[bool] | None, errors: list[Planning
     except PlanningError as exc:
         errors.append(exc)
         return None
+
+
+def _presses_on_hand(robot: RobotDescription, model: mujoco.MjModel, joint: int, task: ArticulationTask, state: float,
+                     config: PlanConfig) -> bool:
+    """Whether holding the part still at ``state`` takes more than the robot's rest force on a finger
+    (``gripper.fall_rest_force``, else the planner's): the same bound the planner lets a falling part go by."""
+    return _weight_on_hand(model, joint, task, state) > robot.gripper.rest_force(config.fall_rest_force)
 
 
 def _weight_on_hand(model: mujoco.MjModel, joint: int, task: ArticulationTask, state: float) -> float:
@@ -292,10 +299,17 @@ def _from_pregrasp(
         # millimetre, nor in orientation (what it must be, collision-free, is checked below).
         _require(e_pos, e_rot, config, "approach via pose", start_state, task, (config.via_position_tolerance, np.pi))
         approach = [q_start, q_via, q_pre, q_grasp]
-        for q0, q1 in ((q_start, q_via), (q_via, q_pre)):
-            hit = first_collision(model, ik, _approach_samples(robot, model, q0, q1, config), start_state, opening, allowed, floor)
-            if hit is not None:
+        hit = _first_hit(robot, model, ik, approach[:-1], start_state, opening, floor, config)
+        if hit is not None:
+            # The joint move from a hand held high to a low via swings the hand out through the furniture above
+            # the handle (funrec_mm from home to a drawer at 0.40 m under another at 0.69 m: the hand 7 cm beyond
+            # the upper drawer's front at 0.8 m high, reseed-8 plain_pri_drawer_01; the same on reseed-4
+            # pri_drawer_04 and person_partial_pri_drawer_00). Then the hand goes to the via along a straight line,
+            # through IK poses short moves apart, each move too short to swing far off it.
+            line = _line_to(ik, q_start, T_via, posture[0], start_state, opening, config)
+            if line is None or _first_hit(robot, model, ik, [q_start, *line, q_pre], start_state, opening, floor, config) is not None:
                 raise PlanningError(f"approach of part '{task.part}': {hit[0]} runs into {hit[1]} (also through a via pose)")
+            approach = [q_start, *line, q_pre, q_grasp]
 
     final_path = None
     if straightened is not None and _strays(ik, approach_move(robot, model, q_pre, q_grasp, config, config.final_approach_scale).q,
@@ -385,6 +399,40 @@ def _from_pregrasp(
         "released": released,
         "tilt": 0.0,
     }
+
+
+def _first_hit(robot: RobotDescription, model: mujoco.MjModel, ik: WholeBodyIK, waypoints: list[FloatArray], part_state: float,
+               fingers: float, floor: set[int], config: PlanConfig) -> tuple[str, str] | None:
+    """The first robot-scene contact (robot geom, scene geom) of the joint moves through ``waypoints`` (each (nq,)),
+    the handle included, or None."""
+    for q0, q1 in zip(waypoints[:-1], waypoints[1:]):
+        hit = first_collision(model, ik, _approach_samples(robot, model, q0, q1, config), part_state, fingers, set(), floor)
+        if hit is not None:
+            return hit
+    return None
+
+
+def _line_to(ik: WholeBodyIK, q_start: FloatArray, T_to: FloatArray, q_posture: FloatArray, part_state: float,
+             fingers: float, config: PlanConfig) -> list[FloatArray] | None:
+    """IK solutions along the straight line from the grasp frame at ``q_start`` to ``T_to`` (4, 4), world frame,
+    at most ``approach_line_step`` (m) apart, the orientation turned proportionally on the way (slerp); the last
+    is ``T_to``'s. Each is solved from the one before, to ``via_position_tolerance`` (free space); None where one is
+    missed."""
+    from scipy.spatial.transform import Rotation, Slerp
+
+    T_from = ik.grasp_pose(q_start, part_state, fingers)
+    length = float(np.linalg.norm(T_to[:3, 3] - T_from[:3, 3]))
+    fractions = np.linspace(0.0, 1.0, max(int(np.ceil(length / config.approach_line_step)), 1) + 1)[1:]
+    turn = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([T_from[:3, :3], T_to[:3, :3]])))
+    line, q = [], q_start
+    for fraction, R in zip(fractions, turn(fractions).as_matrix()):
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = R, (1.0 - fraction) * T_from[:3, 3] + fraction * T_to[:3, 3]
+        q, e_pos, _ = ik.solve(T, q, q_posture, part_state, fingers, rolling=True)
+        if e_pos > config.via_position_tolerance:
+            return None
+        line.append(q)
+    return line
 
 
 APPROACH_SAMPLES = 200
