@@ -164,7 +164,6 @@ def depth_states(
     arrival: Arrival | None = None,
     seen_states: tuple[IntArray, FloatArray] | None = None,
     rest_frames: int | None = None,
-    still_frames: int = 0,
 ) -> FloatArray:
     """Joint state of every frame of the capture from its depth, consistent with the tracked states.
 
@@ -198,16 +197,12 @@ def depth_states(
             above the frame's best); those frames hold the search there as a trusted tracked state would,
             where their depth does not object. Frames before ``rest_frames`` (before the scene changed) may
             object without ending the rest. None: no rest is assumed.
-        still_frames: frames before this one hold the canonical state whatever their depth says: the scene had not
-            yet changed by as much as a part makes (see :func:`~funrec.parts.depth_proposal.propose_part`), so the
-            part had not moved, and a cheaper state there is something else (an arm in front of a plain front
-            flush with its neighbours, which a slide within the front's plane moves the points out from behind).
 
     Returns:
         (F,) state of every capture frame (rad or m), same canonical state as ``tracked_states``.
     """
     return _search(capture, trajectory, joint_type, axis_world, pivot_world, p_world, tracked_frames, tracked_states,
-                   trusted, config, normal_world, arrival, seen_states, rest_frames, still_frames).states
+                   trusted, config, normal_world, arrival, seen_states, rest_frames).states
 
 
 def depth_fit(
@@ -232,8 +227,11 @@ def depth_fit(
 
     Args: as :func:`depth_states` (``p_world`` (M, 3) canonical part points, world frame; the mean
         cost includes the ``arrival`` term where given; ``normal_world`` scores points that face
-        away from the camera as a panel's far face; ``rest_frames`` and ``still_frames`` hold the part at
-        rest).
+        away from the camera as a panel's far face; ``rest_frames`` holds the part at rest as there).
+        still_frames: frames before this one hold the canonical state whatever their depth says: the scene had not
+            yet changed by as much as a part makes (see :func:`~funrec.parts.depth_proposal.propose_part`), so the
+            part had not moved, and a cheaper state there is something else (an arm in front of a plain front
+            flush with its neighbours, which a slide within the front's plane moves the points out from behind).
 
     Returns:
         The fit: (F,) state of every frame, the mean cost in [0, 1] (NaN when no frame sees
@@ -334,7 +332,7 @@ def reaches_grid_end(fit: DepthFit, joint_type: str, config: DepthStateConfig) -
 def _rest_prefix(depth_only: FloatArray, seeing: BoolArray, canonical: int, rest_frames: int, change_cost: float,
                  still_frames: int = 0) -> IntArray:
     """Frames (from 1) of the rest at the canonical grid state (see :func:`depth_states`' ``rest_frames`` and
-    ``still_frames``): those before the first frame at or after ``max(rest_frames, still_frames)`` whose depth
+    :func:`depth_fit`'s ``still_frames``): those before the first frame at or after ``max(rest_frames, still_frames)`` whose depth
     objects to it, less the frames from ``still_frames`` on that object."""
     objects = seeing & _depth_objects(depth_only, np.full(len(depth_only), canonical), change_cost)
     objects[: max(still_frames, 1)] = False
